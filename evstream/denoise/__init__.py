@@ -1,0 +1,10 @@
+"""Denoise stages, one module per method family; importing this package registers them all.
+
+`--denoise NAME` builds the registered stage kind NAME (`none` runs no stage). A new filter is one
+new module here with a `@register("stage", "name")` class, imported below.
+"""
+
+from . import oracle  # noqa: F401  (registers its stages)
+from .base import Classifier
+
+__all__ = ["Classifier"]

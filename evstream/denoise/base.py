@@ -1,0 +1,36 @@
+"""What every denoise stage shares: classify the events still SIGNAL, write `cls`, never drop."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..events import EventChunk, NoiseClass
+
+
+class Classifier:
+    """Base of denoise stages (subclasses are dataclasses holding parameters and state).
+
+    A stage sees only the events its input still classes SIGNAL, so stages in a pipeline form a
+    cascade: later stages judge (and learn from) what earlier ones kept. Subclasses implement
+    `classify(chunk) -> uint8 class codes` for that sub-stream, and `score(chunk)` where they can.
+    """
+
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        cls = chunk.classes().copy()
+        live = np.flatnonzero(cls == NoiseClass.SIGNAL)
+        if len(live) == len(cls):
+            cls = np.ascontiguousarray(self.classify(chunk), dtype=np.uint8)
+        elif len(live):
+            cls[live] = self.classify(chunk[live])
+        else:
+            self.classify(chunk[live])  # let the stage see the watermark
+        return chunk.replace(cls=cls)
+
+    def classify(self, chunk: EventChunk) -> np.ndarray:
+        raise NotImplementedError
+
+    def params(self) -> dict:
+        """The constructor parameters (units in their names), for provenance and TOML round trips."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init}

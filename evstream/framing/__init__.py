@@ -1,0 +1,1 @@
+"""Framers (events -> frames) and frame rendering; importing this package registers the framers."""

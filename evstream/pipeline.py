@@ -1,0 +1,272 @@
+"""Stages, framers, sources and sinks, and the `Pipeline` that connects them.
+
+A source yields `EventChunk`s; each stage maps a chunk to a chunk (denoise stages write `cls`, they
+never drop); an optional framer turns events into `Frame`s; every sink receives one `Batch` per
+source chunk. Stages and framers hold their own state and must be chunk-invariant, causal and
+bounded in memory (see `evstream.testing`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from .events import N_CLASSES, EventChunk, Frame, Geometry, NoiseClass
+
+try:  # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover
+    import tomli as tomllib
+
+
+@runtime_checkable
+class Stage(Protocol):
+    """Maps a chunk to a chunk of the same events (denoise stages write `cls`)."""
+
+    def __call__(self, chunk: EventChunk) -> EventChunk: ...
+
+
+@runtime_checkable
+class Framer(Protocol):
+    """Turns a stream of chunks into frames; `finish` closes the frame still open."""
+
+    def push(self, chunk: EventChunk) -> list[Frame]: ...
+
+    def finish(self) -> list[Frame]: ...
+
+
+@runtime_checkable
+class Source(Protocol):
+    """An iterable of validated chunks from one sensor, with its geometry and a description."""
+
+    geometry: Geometry
+
+    def __iter__(self) -> Iterator[EventChunk]: ...
+
+
+@runtime_checkable
+class Sink(Protocol):
+    """Receives every batch; `close` is called once, with the final statistics."""
+
+    def write(self, batch: Batch) -> None: ...
+
+    def close(self, stats: RunStats) -> None: ...
+
+
+@dataclass
+class RunStats:
+    """Counts of a run so far: events in, events per assigned class, frames, time covered."""
+
+    events_in: int = 0
+    per_class: np.ndarray = field(default_factory=lambda: np.zeros(N_CLASSES, np.int64))
+    frames: int = 0
+    chunks: int = 0
+    t_first_us: int | None = None
+    t_last_us: int | None = None
+    wall_s: float = 0.0
+
+    def add(self, chunk: EventChunk, n_frames: int) -> None:
+        self.chunks += 1
+        self.frames += n_frames
+        if not len(chunk):
+            return
+        self.events_in += len(chunk)
+        self.per_class += np.bincount(chunk.classes(), minlength=N_CLASSES)[:N_CLASSES]
+        if self.t_first_us is None:
+            self.t_first_us = int(chunk.t[0])
+        self.t_last_us = int(chunk.t[-1])
+
+    @property
+    def duration_us(self) -> int:
+        return 0 if self.t_first_us is None else self.t_last_us - self.t_first_us
+
+    @property
+    def rate_hz(self) -> float:
+        """Event rate in event time (events per second of recording)."""
+        return self.events_in / (self.duration_us * 1e-6) if self.duration_us > 0 else 0.0
+
+    @property
+    def throughput_hz(self) -> float:
+        """Processing speed: events per wall-clock second."""
+        return self.events_in / self.wall_s if self.wall_s > 0 else 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "events_in": self.events_in,
+            "events_signal": int(self.per_class[NoiseClass.SIGNAL]),
+            "events_background": int(self.per_class[NoiseClass.BACKGROUND]),
+            "events_hot_pixel": int(self.per_class[NoiseClass.HOT_PIXEL]),
+            "frames": self.frames,
+            "chunks": self.chunks,
+            "duration_us": self.duration_us,
+            "rate_hz": self.rate_hz,
+            "wall_s": self.wall_s,
+            "throughput_hz": self.throughput_hz,
+        }
+
+
+@dataclass
+class Batch:
+    """What sinks receive for each source chunk: its classified events, new frames, stats so far."""
+
+    events: EventChunk
+    frames: list[Frame]
+    stats: RunStats
+
+
+class Pipeline:
+    """Stages in order, then an optional framer. `process` one chunk, `finish` at end of stream."""
+
+    def __init__(self, stages: Iterable[Stage] = (), framer: Framer | None = None):
+        self.stages = list(stages)
+        self.framer = framer
+        self.stats = RunStats()
+
+    def process(self, chunk: EventChunk) -> Batch:
+        for stage in self.stages:
+            chunk = stage(chunk)
+        frames = self.framer.push(chunk) if self.framer is not None else []
+        self.stats.add(chunk, len(frames))
+        return Batch(chunk, frames, self.stats)
+
+    def finish(self, geometry: Geometry) -> Batch:
+        frames = self.framer.finish() if self.framer is not None else []
+        self.stats.frames += len(frames)
+        return Batch(EventChunk.empty(geometry, with_cls=True), frames, self.stats)
+
+    def run(
+        self,
+        source: Iterable[EventChunk],
+        sinks: Iterable[Sink] = (),
+        on_batch: Callable[[Batch], None] | None = None,
+    ) -> RunStats:
+        """Drive `source` through the pipeline into `sinks`; sinks are closed even on error."""
+        sinks = list(sinks)
+        t0 = time.perf_counter()
+        geometry = getattr(source, "geometry", None)
+        try:
+            for chunk in source:
+                geometry = chunk.geometry
+                batch = self.process(chunk)
+                for sink in sinks:
+                    sink.write(batch)
+                self.stats.wall_s = time.perf_counter() - t0
+                if on_batch is not None:
+                    on_batch(batch)
+            if geometry is not None:
+                batch = self.finish(geometry)
+                if batch.frames:
+                    for sink in sinks:
+                        sink.write(batch)
+        finally:
+            self.stats.wall_s = time.perf_counter() - t0
+            for sink in sinks:
+                sink.close(self.stats)
+        return self.stats
+
+    def describe(self) -> dict[str, Any]:
+        """Parameters of every stage and the framer, for provenance (MCAP metadata, logs)."""
+        return {
+            "stages": [describe(s) for s in self.stages],
+            "framer": describe(self.framer) if self.framer is not None else None,
+        }
+
+    # -- construction from a description ---------------------------------------------------------
+    @classmethod
+    def from_config(cls, config: dict[str, Any]) -> Pipeline:
+        """From `{"stage": [{"kind": ..., **params}, ...], "framer": {"kind": ..., **params}}`."""
+        stages = [build("stage", dict(spec)) for spec in config.get("stage", [])]
+        framer_spec = config.get("framer")
+        framer = build("framer", dict(framer_spec)) if framer_spec else None
+        return cls(stages, framer)
+
+    @classmethod
+    def from_toml(cls, path) -> Pipeline:
+        """From a TOML file: `[[stage]] kind = "density" window_us = 20000` ... `[framer] kind = "fw"`."""
+        with open(path, "rb") as f:
+            try:
+                config = tomllib.load(f)
+            except tomllib.TOMLDecodeError as e:
+                raise ValueError(f"{path}: not valid TOML: {e}") from None
+        try:
+            return cls.from_config(config)
+        except (TypeError, ValueError, KeyError) as e:
+            raise ValueError(f"{path}: {e}") from None
+
+
+# -- registry of stage and framer kinds ---------------------------------------------------------
+_REGISTRY: dict[str, dict[str, Callable[..., Any]]] = {"stage": {}, "framer": {}}
+
+
+def register(role: str, kind: str):
+    """Class decorator: make a stage or framer constructible by name (`--denoise`, TOML `kind`)."""
+
+    def deco(factory):
+        _REGISTRY[role][kind] = factory
+        factory.kind = kind
+        return factory
+
+    return deco
+
+
+def _load_plugins() -> None:
+    # Importing the packages registers their stages and framers.
+    from . import denoise, framing  # noqa: F401
+
+
+def kinds(role: str) -> list[str]:
+    _load_plugins()
+    return sorted(_REGISTRY[role])
+
+
+def build(role: str, spec: dict[str, Any]):
+    """Instantiate a registered stage or framer from `{"kind": name, **params}`."""
+    _load_plugins()
+    spec = dict(spec)
+    kind = spec.pop("kind", None)
+    if kind not in _REGISTRY[role]:
+        raise ValueError(f"unknown {role} kind {kind!r}; known: {', '.join(sorted(_REGISTRY[role]))}")
+    try:
+        return _REGISTRY[role][kind](**spec)
+    except TypeError as e:
+        raise ValueError(f"{role} {kind!r}: {e}") from None
+
+
+def describe(obj) -> dict[str, Any]:
+    """`{"kind": ..., **dataclass fields}` for a registered stage or framer."""
+    out = {"kind": getattr(obj, "kind", type(obj).__name__)}
+    params = getattr(obj, "params", None)
+    if params is not None:
+        out.update(params() if callable(params) else params)
+    return out
+
+
+# -- pacing -------------------------------------------------------------------------------------
+def paced(
+    chunks: Iterable[EventChunk],
+    speed: float,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Iterator[EventChunk]:
+    """Yield chunks no earlier than their event time allows: `speed` 1 = real time, 2 = twice as fast,
+    0 = as fast as possible. A chunk is released when the stream reaches its last event's time."""
+    if speed < 0:
+        raise ValueError(f"speed must be >= 0, got {speed}")
+    if speed == 0:
+        yield from chunks
+        return
+    t0_event = None
+    t0_wall = 0.0
+    for chunk in chunks:
+        if len(chunk):
+            if t0_event is None:
+                t0_event, t0_wall = int(chunk.t[0]), clock()
+            due = t0_wall + (int(chunk.t[-1]) - t0_event) * 1e-6 / speed
+            delay = due - clock()
+            if delay > 0:
+                sleep(delay)
+        yield chunk

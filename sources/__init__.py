@@ -1,0 +1,38 @@
+"""Sources: where event chunks come from (files, MCAP logs, Zenoh). One module per format family.
+
+`open_source(path_or_uri)` picks the reader by content (magic bytes), using the extension only as a
+hint. A new file format is one new module here with a `probe(head: bytes, path) -> bool` and an
+`open(path, **options)`; add it to `FORMATS`.
+"""
+
+from __future__ import annotations
+
+import os
+
+from evstream.events import EventError
+
+from . import native
+
+# Readers, most specific magic first; each module has probe(head, path) and open(path, **options).
+FORMATS = [native]
+
+
+def open_source(uri: str | os.PathLike, **options):
+    """Open a recording for replay; raises EventError naming the file when nothing can read it."""
+    path = os.fspath(uri)
+    if not os.path.exists(path):
+        raise EventError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise EventError(f"{path}: is a directory, not a recording")
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    if not head:
+        raise EventError(f"{path}: empty file")
+    for fmt in FORMATS:
+        if fmt.probe(head, path):
+            return fmt.open(path, **options)
+    known = ", ".join(fmt.NAME for fmt in FORMATS)
+    raise EventError(f"{path}: unrecognised format (first bytes {head[:8]!r}); readable formats: {known}")
+
+
+__all__ = ["FORMATS", "open_source"]
