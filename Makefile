@@ -24,8 +24,11 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check evstream sources sinks tests benchmarks
 
+# The shipped synthetic recordings (deterministic: same seeds, same files).
 recordings: $(STAMP)
-	$(BIN)/python -m evstream.synth_recordings recordings
+	$(BIN)/evstream synth turntable recordings/turntable.npz --duration-ms 1000 --noise-ratio 0.5 --seed 1
+	$(BIN)/evstream synth ball recordings/ball.npz --duration-ms 1000 --noise-ratio 0.5 --seed 2
+	$(BIN)/evstream synth bar recordings/bar.npz --duration-ms 500 --noise-ratio 0.5 --seed 3
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -16,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import noise, synth
-from .events import EventChunk, EventError, Geometry, NoiseClass
+from .events import EventError, Geometry, NoiseClass
 from .pipeline import Pipeline, RunStats, build, kinds, paced
 
 

@@ -85,8 +85,9 @@ class RerunSink:
                 sel = np.flatnonzero(cls == c)
                 if len(sel):
                     pos = np.column_stack((ev.x[sel], ev.y[sel], (ev.t[sel] - self.t0) * self.t_scale))
-                    self.rec.log(entity, rr.Points3D(pos.astype(np.float32), class_ids=np.full(len(sel), int(c)),
-                                                     radii=rr.Radius.ui_points(1.5)))
+                    points = rr.Points3D(pos.astype(np.float32), class_ids=np.full(len(sel), int(c)),
+                                         radii=rr.Radius.ui_points(1.5))
+                    self.rec.log(entity, points)
             self._log_stats(batch)
         for frame in batch.frames:
             if self.t0 is None:

@@ -1,0 +1,78 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from evstream.cli import main
+from evstream.events import EventError, Geometry
+from evstream.testing import random_stream
+from sources import native, open_source
+
+G = Geometry(24, 18)
+
+
+def test_native_round_trip_in_chunks(tmp_path):
+    s = random_stream(0, 1234, G)
+    native.save(tmp_path / "a.npz", s, {"scene": "test"})
+    src = open_source(tmp_path / "a.npz", chunk_events=100)
+    chunks = list(src)
+    assert src.geometry == G and src.info()["meta"] == {"scene": "test"}
+    assert [len(c) for c in chunks] == [100] * 12 + [34]
+    assert np.array_equal(np.concatenate([c.t for c in chunks]), s.t)
+    assert np.array_equal(np.concatenate([c.label for c in chunks]), s.label)
+    assert all(a.t_end == b.t[0] for a, b in zip(chunks, chunks[1:]))
+
+
+def test_native_chunks_by_time(tmp_path):
+    s = random_stream(1, 1000, G)
+    native.save(tmp_path / "a.npz", s)
+    chunks = list(open_source(tmp_path / "a.npz", chunk_us=5000))
+    assert sum(map(len, chunks)) == 1000
+    assert all(c.duration_us < 5000 for c in chunks)
+
+
+def test_bad_files_give_clear_errors(tmp_path):
+    with pytest.raises(EventError, match="no such file"):
+        open_source(tmp_path / "missing.npz")
+    (tmp_path / "empty.npz").write_bytes(b"")
+    with pytest.raises(EventError, match="empty file"):
+        open_source(tmp_path / "empty.npz")
+    (tmp_path / "junk.bin").write_bytes(b"\x00\x01junk" * 100)
+    with pytest.raises(EventError, match="unrecognised format"):
+        open_source(tmp_path / "junk.bin")
+    s = random_stream(0, 50, G)
+    native.save(tmp_path / "bad.npz", s.replace(x=np.full(50, 99, np.uint16)))
+    with pytest.raises(EventError, match=r"bad.npz: event 0: \(99, .*outside the 24x18 sensor"):
+        list(open_source(tmp_path / "bad.npz"))
+
+
+def test_info_json_reports_true_label_counts(tmp_path, capsys):
+    s = random_stream(2, 700, G)
+    native.save(tmp_path / "a.npz", s)
+    assert main(["info", str(tmp_path / "a.npz"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["events"] == 700 and (out["width"], out["height"]) == (24, 18)
+    assert out["labels"] == {"signal": int((s.label == 0).sum()), "background": int((s.label == 1).sum()),
+                             "hot_pixel": int((s.label == 2).sum())}
+    assert out["duration_us"] == int(s.t[-1] - s.t[0]) and out["format"] == "native"
+
+
+def test_cli_exit_codes_and_one_line_errors(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "info", str(tmp_path / "nope.npz")],
+                       capture_output=True, text=True)
+    assert r.returncode == 1
+    assert r.stderr.strip().count("\n") == 0 and "no such file" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "frobnicate"], capture_output=True, text=True)
+    assert r.returncode == 2
+
+
+def test_synth_then_replay_writes_rrd(tmp_path, capsys):
+    npz, rrd = tmp_path / "bar.npz", tmp_path / "bar.rrd"
+    assert main(["synth", "bar", str(npz), "--duration-ms", "100", "--width", "64", "--height", "48",
+                 "--noise-ratio", "0.5"]) == 0
+    assert main(["replay", str(npz), "--save", str(rrd), "--json", "--denoise", "truth"]) == 0
+    stats = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert stats["events_background"] > 0 and stats["events_signal"] > 0
+    assert rrd.stat().st_size > 10_000
