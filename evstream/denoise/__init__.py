@@ -4,7 +4,7 @@
 new module here with a `@register("stage", "name")` class, imported below.
 """
 
-from . import oracle  # noqa: F401  (registers its stages)
+from . import cascade, density, oracle, timeseries  # noqa: F401  (registers their stages)
 from .base import Classifier
 
 __all__ = ["Classifier"]

@@ -1,0 +1,215 @@
+"""The paper's cascade: numba kernels against plain-Python brute force, invariants, parameters."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from evstream.denoise.cascade import PaperCascade
+from evstream.denoise.density import DensityFilter
+from evstream.denoise.timeseries import TimeSeriesFilter
+from evstream.events import EventChunk, Geometry, NoiseClass
+from evstream.testing import (
+    assert_bounded_state,
+    assert_causal,
+    assert_chunk_invariant,
+    classify_all,
+    random_bounds,
+    random_stream,
+    split,
+)
+
+G = Geometry(24, 18)
+
+
+# -- plain-Python references ------------------------------------------------------------------------
+def density_reference(s: EventChunk, f: DensityFilter):
+    """Brute force: for each event, scan every earlier event."""
+    r, w, h = f.radius_px, s.geometry.width, s.geometry.height
+    L = 2 * r + 1
+    keep, score = [], []
+    for m in range(len(s)):
+        t, x, y, p = int(s.t[m]), int(s.x[m]), int(s.y[m]), int(s.p[m])
+        in_window = [j for j in range(m) if t - f.window_us < s.t[j] <= t]
+        g = sum(1 for j in in_window if not f.match_polarity or s.p[j] == p)
+        n = sum(1 for j in in_window
+                if abs(int(s.x[j]) - x) <= r and abs(int(s.y[j]) - y) <= r and (not f.match_polarity or s.p[j] == p))
+        if f.clip_border:
+            area = (min(x + r, w - 1) - max(x - r, 0) + 1) * (min(y + r, h - 1) - max(y - r, 0) + 1)
+        else:
+            area = L * L
+        if f.mode == "absolute":
+            keep.append(n >= f.density_hz * area * f.window_us * 1e-6 - 1e-9)
+            score.append(n / (area * f.window_us * 1e-6))
+        else:
+            gg = 2 * g if f.match_polarity else g
+            expected = max(1.0, f.rho_rel * area * gg / (w * h))
+            keep.append(n >= expected)
+            score.append(n / expected)
+    return np.array(keep, bool), np.array(score)
+
+
+def dc_reference(s: EventChunk, f: TimeSeriesFilter):
+    """Brute force: rebuild every pixel's set of active bins from all earlier events."""
+    r, w, h, n = f.radius_px, s.geometry.width, s.geometry.height, f.n_bins
+    active: dict[tuple[int, int], set[int]] = {}
+    hot, score = [], []
+    for m in range(len(s)):
+        b = int(s.t[m]) // f.bin_us
+        x, y = int(s.x[m]), int(s.y[m])
+        active.setdefault((x, y), set()).add(b)
+
+        def dc(px):
+            return sum(1 for k in active.get(px, ()) if b - n < k <= b) / n
+
+        nbs = [(x + dx, y + dy) for dy in range(-r, r + 1) for dx in range(-r, r + 1)
+               if (dx, dy) != (0, 0) and 0 <= x + dx < w and 0 <= y + dy < h]
+        mean = sum(dc(q) for q in nbs) / len(nbs) if nbs else 0.0
+        d = dc((x, y))
+        if f.form == "difference":
+            hot.append(d - mean > f.lam)
+            score.append(d - mean)
+        else:
+            hot.append(d > f.lam * mean if mean > 0 else d > f.lam / n)
+            score.append(d / mean if mean > 0 else math.inf)
+    return np.array(hot, bool), np.array(score)
+
+
+density_params = st.fixed_dictionaries({
+    "radius_px": st.integers(0, 3),
+    "window_us": st.sampled_from([1, 50, 400, 3000]),
+    "mode": st.sampled_from(["relative", "absolute"]),
+    "density_hz": st.sampled_from([0.0, 500.0, 5000.0, 50_000.0]),
+    "rho_rel": st.sampled_from([0.0, 0.5, 1.0, 3.0]),
+    "match_polarity": st.booleans(),
+    "clip_border": st.booleans(),
+})
+
+dc_params = st.fixed_dictionaries({
+    "rate_hz": st.sampled_from([1000.0, 10_000.0, 250.0]),
+    "n_bins": st.sampled_from([1, 7, 63, 64]),
+    "lam": st.sampled_from([0.0, 0.05, 0.3]),
+    "form": st.sampled_from(["difference", "ratio"]),
+    "radius_px": st.integers(1, 2),
+})
+
+
+@given(st.integers(0, 2**32), st.integers(0, 250), density_params)
+def test_density_kernel_matches_brute_force(seed, n, params):
+    s = random_stream(seed, n, G, mean_dt_us=30)
+    f = DensityFilter(**params)
+    keep, score = density_reference(s, f)
+    parts = split(s, random_bounds(seed, n))
+    got = [f.classify_scored(c) for c in parts]
+    codes = np.concatenate([c for c, _ in got]) if got else np.zeros(0, np.uint8)
+    scores = np.concatenate([sc for _, sc in got]) if got else np.zeros(0)
+    assert np.array_equal(codes == NoiseClass.SIGNAL, keep)
+    assert np.allclose(scores, score)
+
+
+def test_density_fifo_grows_past_its_initial_capacity():
+    s = random_stream(1, 20_000, G, mean_dt_us=0.5)  # the whole stream fits in one window
+    f = DensityFilter(window_us=10**9, mode="absolute", density_hz=0.0)
+    codes, score = f.classify_scored(s)
+    assert len(f._state["fifo_t"]) >= 20_000 and f._state["fifo_state"][1] == 20_000
+    keep, ref = density_reference(s[:300], DensityFilter(window_us=10**9, mode="absolute", density_hz=0.0))
+    assert np.allclose(score[:300], ref) and (codes == 0).all()
+
+
+@given(st.integers(0, 2**32), st.integers(0, 250), dc_params)
+def test_dc_kernel_matches_brute_force(seed, n, params):
+    s = random_stream(seed, n, G, mean_dt_us=params["n_bins"] * 1e6 / params["rate_hz"] / 40)
+    f = TimeSeriesFilter(**params)
+    hot, score = dc_reference(s, f)
+    got = [f.classify_scored(c) for c in split(s, random_bounds(seed, n))]
+    codes = np.concatenate([c for c, _ in got]) if got else np.zeros(0, np.uint8)
+    scores = np.concatenate([sc for _, sc in got]) if got else np.zeros(0)
+    assert np.array_equal(codes == NoiseClass.HOT_PIXEL, hot)
+    assert np.allclose(scores, score)
+
+
+def test_dc_bins_are_anchored_at_time_zero_not_at_the_chunk():
+    # two events 1 µs apart straddling a bin edge fall in different bins wherever the chunk starts
+    g = Geometry(3, 3)
+    ev = EventChunk.from_arrays([3999, 4000], [1, 1], [1, 1], [1, 1], g)
+    f = TimeSeriesFilter(rate_hz=250.0, n_bins=2, lam=0.0)
+    _, score = f.classify_scored(ev)
+    assert score.tolist() == [0.5, 1.0]  # bins 0 and 1: the second event sees two active bins of two
+
+
+@pytest.mark.parametrize("make", [
+    lambda: DensityFilter(window_us=500), lambda: DensityFilter(mode="absolute", window_us=2000),
+    lambda: DensityFilter(match_polarity=True, clip_border=True, window_us=300),
+    lambda: TimeSeriesFilter(rate_hz=10_000.0), lambda: PaperCascade(coarse={"window_us": 800},
+                                                                    fine={"rate_hz": 5000.0}),
+])
+@given(seed=st.integers(0, 2**32))
+def test_invariants(make, seed):
+    s = random_stream(seed, 400, G)
+    assert_chunk_invariant(make, s, seed)
+    assert_causal(make, s, seed)
+
+
+@pytest.mark.parametrize("make", [lambda: DensityFilter(window_us=500), lambda: TimeSeriesFilter(),
+                                  lambda: PaperCascade()])
+def test_state_is_bounded(make):
+    assert_bounded_state(make, lambda n: random_stream(0, n, G), n=3000)
+
+
+def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept():
+    s = random_stream(5, 3000, G)
+    cascade = PaperCascade(coarse={"window_us": 1000}, fine={"rate_hz": 5000.0})
+    got = classify_all(cascade, [s])
+    coarse = DensityFilter(window_us=1000)(s)
+    fine = TimeSeriesFilter(rate_hz=5000.0)
+    kept = np.flatnonzero(coarse.cls == 0)
+    expected = coarse.cls.copy()
+    expected[kept] = fine.classify(s[kept])
+    assert np.array_equal(got, expected)
+    assert set(np.unique(got)) <= {0, 1, 2}
+    scored_chunk, score = PaperCascade(coarse={"window_us": 1000}, fine={"rate_hz": 5000.0}).scored(s)
+    assert np.array_equal(scored_chunk.cls, got)
+    assert ((score >= 1) == (got == 0)).all()
+
+
+def test_hot_pixels_are_found_and_signal_kept_on_a_synthetic_scene():
+    from evstream.noise import NoiseSpec, inject
+    from evstream.synth import scene
+
+    g = Geometry(96, 72)
+    sig = scene("turntable", g, duration_us=600_000, seed=3)
+    noisy = inject(sig, NoiseSpec(ba_rate_hz=1.0, hot_pixels=12, hot_rate_hz=(200, 2000)), seed=4,
+                   t_start_us=0, t_stop_us=600_000)
+    cascade = PaperCascade()
+    cls = cascade(noisy).cls
+    warm = noisy.t >= cascade.history_us
+    lab = noisy.label[warm]
+    cls = cls[warm]
+    assert (cls[lab == NoiseClass.SIGNAL] == NoiseClass.SIGNAL).mean() > 0.95
+    assert (cls[lab == NoiseClass.HOT_PIXEL] != NoiseClass.SIGNAL).mean() > 0.99
+    assert (cls[lab == NoiseClass.BACKGROUND] != NoiseClass.SIGNAL).mean() > 0.8
+
+
+@pytest.mark.parametrize("bad", [
+    {"radius_px": -1}, {"radius_px": 1.5}, {"window_us": 0}, {"mode": "fuzzy"}, {"density_hz": -1},
+    {"rho_rel": float("nan")},
+])
+def test_density_rejects_bad_parameters(bad):
+    with pytest.raises(ValueError):
+        DensityFilter(**bad)
+
+
+@pytest.mark.parametrize("bad", [
+    {"rate_hz": 0}, {"rate_hz": 3.0}, {"n_bins": 65}, {"n_bins": 0}, {"lam": 1.5}, {"lam": -0.1},
+    {"form": "sum"}, {"radius_px": 0},
+])
+def test_dc_rejects_bad_parameters(bad):
+    with pytest.raises(ValueError):
+        TimeSeriesFilter(**bad)
+
+
+def test_absolute_threshold_as_a_count():
+    assert DensityFilter(mode="absolute").n_threshold == 5  # 10 Hz · 25 px · 20 ms
+    assert DensityFilter(mode="absolute", radius_px=1, window_us=10_000).n_threshold == 1
