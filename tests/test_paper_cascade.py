@@ -61,7 +61,7 @@ def dc_reference(s: EventChunk, f: TimeSeriesFilter):
         x, y = int(s.x[m]), int(s.y[m])
         active.setdefault((x, y), set()).add(b)
 
-        def dc(px):
+        def dc(px, b=b):
             return sum(1 for k in active.get(px, ()) if b - n < k <= b) / n
 
         nbs = [(x + dx, y + dy) for dy in range(-r, r + 1) for dx in range(-r, r + 1)

@@ -75,7 +75,7 @@ def density_kernel(t, x, y, p, start, hsum, padded_width, fifo_t, fifo_pos, fifo
         corner = pl * plane + yi * padded_width + xi  # padded (row y, column x) = top-left of the L×L box
         total = 0
         q = corner + radius
-        for dy in range(L):
+        for _ in range(L):
             total += hsum[q]
             q += padded_width
         if clip_border:
