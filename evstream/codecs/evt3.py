@@ -1,0 +1,348 @@
+"""Prophesee EVT 3.0 <-> event arrays: a streaming numba decoder and an encoder (no file I/O).
+
+EVT 3.0 is a stream of little-endian 16-bit words, the type in bits 15..12:
+
+| type | word          | payload (bits 11..0)                                             |
+|------|---------------|------------------------------------------------------------------|
+| 0x0  | ADDR_Y        | y (10..0), system type (11)                                      |
+| 0x2  | ADDR_X        | x (10..0), polarity (11): one event at (x, y, p, t)              |
+| 0x3  | VECT_BASE_X   | x (10..0), polarity (11): base of the following vector words     |
+| 0x4  | VECT_12       | 12-bit mask: events at base + i for each set bit i; base += 12   |
+| 0x5  | VECT_8        | 8-bit mask (7..0): the same with 8; base += 8                    |
+| 0x6  | TIME_LOW      | timestamp bits 11..0                                             |
+| 0x7  | CONTINUED_4   | payload of the previous word (skipped)                           |
+| 0x8  | TIME_HIGH     | timestamp bits 23..12                                            |
+| 0xA  | EXT_TRIGGER   | trigger value (0) and channel (11..8) (counted, not an event)    |
+| 0xE  | OTHERS        | sub-type (skipped, counted)                                      |
+| 0xF  | CONTINUED_12  | payload of the previous word (skipped)                           |
+
+Other types are unknown: skipped and counted. The decode is spec-literal: t = TIME_HIGH·4096 +
+TIME_LOW (+ 2^24 per time-high wrap), so a TIME_LOW that steps back under the same TIME_HIGH gives
+a timestamp that steps back (counted in `time_back`); the source's timestamp policy decides what to do
+with it. A TIME_HIGH that drops from the top of its range to the bottom (by ≥ 4080, as a camera's
+4095 -> 0) is a wrap of the 24-bit clock (2^24 µs ≈ 16.8 s); a smaller drop is a step back.
+Events before the first TIME_HIGH have no time base and are skipped (counted in `no_time`).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["Evt3Decoder", "decode", "encode"]
+
+# state slots of the decoder (an int64 array, so the kernel stays a pure function of arrays)
+_HIGH, _LOW, _Y, _BASE_X, _POL, _LOOPS, _HAS_HIGH, _LAST_T = range(8)
+_N_STATE = 8
+# counter slots
+_UNKNOWN, _TRIGGER, _OTHERS, _CONTINUED, _TIME_BACK, _NO_TIME, _WRAPS = range(7)
+_N_COUNTERS = 7
+COUNTER_NAMES = ("unknown", "trigger", "others", "continued", "time_back", "no_time", "wraps")
+
+_WRAP_US = 1 << 24
+_HIGH_HALF_RANGE = 2048
+_WRAP_MIN_DROP = 4096 - 16  # a camera wraps 4095 -> 0; a smaller drop is a step back
+_MAX_EVENTS_PER_WORD = 12
+
+
+@numba.njit(cache=True, nogil=True)
+def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
+    """Decode `words` into the out arrays until the words or the room run out.
+
+    Returns (events written, words consumed); stops before a word that might not fit.
+    """
+    high = state[_HIGH]
+    low = state[_LOW]
+    y = state[_Y]
+    base_x = state[_BASE_X]
+    pol = state[_POL]
+    loops = state[_LOOPS]
+    has_high = state[_HAS_HIGH]
+    last_t = state[_LAST_T]
+    cap = len(out_t)
+    n = 0
+    i = 0
+    nw = len(words)
+    t = (loops << 24) + (high << 12) + low
+    while i < nw:
+        if n + _MAX_EVENTS_PER_WORD > cap:
+            break
+        w = np.int64(words[i])
+        kind = w >> 12
+        payload = w & 0xFFF
+        if kind == 0x2:  # ADDR_X: one event
+            if has_high:
+                if t < last_t:
+                    counters[_TIME_BACK] += 1
+                last_t = t
+                out_t[n] = t
+                out_x[n] = payload & 0x7FF
+                out_y[n] = y
+                out_p[n] = payload >> 11
+                n += 1
+            else:
+                counters[_NO_TIME] += 1
+        elif kind == 0x0:  # ADDR_Y
+            y = payload & 0x7FF
+        elif kind == 0x4 or kind == 0x5:  # VECT_12, VECT_8
+            width = 12 if kind == 0x4 else 8
+            mask = payload if kind == 0x4 else payload & 0xFF
+            if has_high:
+                if mask != 0 and t < last_t:
+                    counters[_TIME_BACK] += 1
+                if mask != 0:
+                    last_t = t
+                for b in range(width):
+                    if (mask >> b) & 1:
+                        out_t[n] = t
+                        out_x[n] = base_x + b
+                        out_y[n] = y
+                        out_p[n] = pol
+                        n += 1
+            else:
+                m = mask
+                while m:
+                    counters[_NO_TIME] += m & 1
+                    m >>= 1
+            base_x += width
+        elif kind == 0x3:  # VECT_BASE_X
+            base_x = payload & 0x7FF
+            pol = payload >> 11
+        elif kind == 0x6:  # TIME_LOW
+            low = payload
+            t = (loops << 24) + (high << 12) + low
+        elif kind == 0x8:  # TIME_HIGH
+            if has_high and payload < high:
+                if high - payload >= _WRAP_MIN_DROP:
+                    loops += 1
+                    counters[_WRAPS] += 1
+            high = payload
+            has_high = 1
+            t = (loops << 24) + (high << 12) + low
+        elif kind == 0xA:
+            counters[_TRIGGER] += 1
+        elif kind == 0xE:
+            counters[_OTHERS] += 1
+        elif kind == 0x7 or kind == 0xF:
+            counters[_CONTINUED] += 1
+        else:
+            counters[_UNKNOWN] += 1
+        i += 1
+    state[_HIGH] = high
+    state[_LOW] = low
+    state[_Y] = y
+    state[_BASE_X] = base_x
+    state[_POL] = pol
+    state[_LOOPS] = loops
+    state[_HAS_HIGH] = has_high
+    state[_LAST_T] = last_t
+    return n, i
+
+
+def _as_bytes_array(data) -> np.ndarray:
+    if isinstance(data, np.ndarray):
+        return np.ascontiguousarray(data).view(np.uint8).reshape(-1)
+    return np.frombuffer(memoryview(data), np.uint8)
+
+
+class Evt3Decoder:
+    """Streaming EVT3 decoder: feed byte blocks of any size; partial words and the time base carry over.
+
+    `counters` (dict) counts skipped words (unknown, trigger, others, continued), events before the
+    first TIME_HIGH (no_time), timestamps stepping back (time_back) and 24-bit clock wraps (wraps).
+    """
+
+    def __init__(self):
+        self.state = np.zeros(_N_STATE, np.int64)
+        self.state[_LAST_T] = np.iinfo(np.int64).min
+        self._counters = np.zeros(_N_COUNTERS, np.int64)
+        self._pending = b""  # an odd trailing byte
+        self.bytes_in = 0
+
+    @property
+    def counters(self) -> dict:
+        return {name: int(v) for name, v in zip(COUNTER_NAMES, self._counters)}
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes held back (half a word) waiting for the next block."""
+        return len(self._pending)
+
+    @property
+    def has_time(self) -> bool:
+        return bool(self.state[_HAS_HIGH])
+
+    @property
+    def time_us(self) -> int:
+        """The current time base (TIME_HIGH, TIME_LOW and wraps seen so far)."""
+        s = self.state
+        return int((s[_LOOPS] << 24) + (s[_HIGH] << 12) + s[_LOW])
+
+    def decode(self, data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Decode a block; returns (t int64 µs, x uint16, y uint16, p uint8) in stream order."""
+        raw = _as_bytes_array(data)
+        self.bytes_in += len(raw)
+        if self._pending:
+            raw = np.concatenate((np.frombuffer(self._pending, np.uint8), raw))
+            self._pending = b""
+        if len(raw) % 2:
+            self._pending = raw[-1:].tobytes()
+            raw = raw[:-1]
+        words = raw.view("<u2")
+        parts = []
+        start = 0
+        while start < len(words):
+            rest = words[start:]
+            # most streams carry about one event per word; grow only when vectors are denser
+            cap = min(len(rest) * _MAX_EVENTS_PER_WORD, 2 * len(rest) + 64)
+            out_t = np.empty(cap, np.int64)
+            out_x = np.empty(cap, np.uint16)
+            out_y = np.empty(cap, np.uint16)
+            out_p = np.empty(cap, np.uint8)
+            n, used = _decode_kernel(rest, self.state, self._counters, out_t, out_x, out_y, out_p)
+            parts.append((out_t[:n], out_x[:n], out_y[:n], out_p[:n]))
+            start += used
+        if not parts:
+            return (np.zeros(0, np.int64), np.zeros(0, np.uint16), np.zeros(0, np.uint16),
+                    np.zeros(0, np.uint8))
+        if len(parts) == 1:
+            return parts[0]
+        return tuple(np.concatenate([p[k] for p in parts]) for k in range(4))
+
+
+def decode(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One-shot decode of a whole EVT3 byte string (no header) into (t, x, y, p)."""
+    return Evt3Decoder().decode(data)
+
+
+# -- encoder -------------------------------------------------------------------------------------
+_MAX_HIGH_STEP = _HIGH_HALF_RANGE - 1  # TIME_HIGH increments the decoder cannot mistake for a wrap
+_VECTOR_MIN_EVENTS = 3  # VECT_BASE_X + VECT_12 (2 words) beats ADDR_X words from 3 events on
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _advance_time_high(out, k, frm, to):
+    """TIME_HIGH words from absolute time-high `frm` to `to` (> frm, or == frm at the start).
+
+    Forward steps stay under half the 12-bit range, and each 24-bit wrap is spelled 4095 -> 0, the
+    way a camera sends it, so no decoder can take a step for a wrap or a wrap for a step back.
+    """
+    cur = frm
+    while (to >> 12) > (cur >> 12):  # wrap(s) ahead
+        end = (cur | 0xFFF)
+        while end - cur > _MAX_HIGH_STEP:
+            cur += _MAX_HIGH_STEP
+            out[k] = 0x8000 | (cur & 0xFFF)
+            k += 1
+        out[k] = 0x8FFF
+        out[k + 1] = 0x8000
+        k += 2
+        cur = end + 1
+    while to - cur > _MAX_HIGH_STEP:
+        cur += _MAX_HIGH_STEP
+        out[k] = 0x8000 | (cur & 0xFFF)
+        k += 1
+    out[k] = 0x8000 | (to & 0xFFF)
+    return k + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _check_kernel(t, x, y, p):
+    """Index of the first event EVT3 cannot carry (t < 0 or going back, x/y ≥ 2048, p > 1), else -1."""
+    prev = np.int64(0)
+    for i in range(len(t)):
+        if t[i] < prev or x[i] > 0x7FF or y[i] > 0x7FF or p[i] > 1:
+            return i
+        prev = t[i]
+    return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _encode_kernel(t, x, y, p, out):
+    """Write EVT3 words for checked events, in stream order, into `out`; returns the word count."""
+    n = len(t)
+    k = 0
+    cur_high = np.int64(0)
+    cur_low = np.int64(-1)
+    cur_y = np.int64(-1)
+    started = False
+    i = 0
+    while i < n:
+        ti = t[i]
+        h = ti >> 12
+        lo = ti & 0xFFF
+        if not started or h != cur_high:
+            k = _advance_time_high(out, k, cur_high if started else np.int64(0), h)
+            cur_high = h
+            cur_low = -1
+            started = True
+        if lo != cur_low:
+            out[k] = 0x6000 | lo
+            k += 1
+            cur_low = lo
+        yi = np.int64(y[i])
+        if yi != cur_y:
+            out[k] = yi
+            k += 1
+            cur_y = yi
+        xi = np.int64(x[i])
+        pi = np.int64(p[i])
+        # events of the same run (same t, y, p; x increasing) within the first 12 pixels
+        m = i + 1
+        while (m < n and t[m] == ti and m - i < _VECTOR_MIN_EVENTS and np.int64(x[m]) < xi + 12
+               and y[m] == y[i] and p[m] == p[i] and x[m] > x[m - 1]):
+            m += 1
+        if m - i >= _VECTOR_MIN_EVENTS:
+            out[k] = 0x3000 | (pi << 11) | xi
+            k += 1
+            base = xi
+            m = i
+            while True:
+                mask = 1 << (np.int64(x[m]) - base)
+                m += 1
+                while (m < n and t[m] == ti and np.int64(x[m]) < base + 12
+                       and y[m] == y[i] and p[m] == p[i] and x[m] > x[m - 1]):
+                    mask |= 1 << (np.int64(x[m]) - base)
+                    m += 1
+                out[k] = 0x4000 | mask
+                k += 1
+                base += 12
+                if not (m < n and t[m] == ti and np.int64(x[m]) < base + 12
+                        and y[m] == y[i] and p[m] == p[i] and x[m] > x[m - 1]):
+                    break
+            i = m
+        else:
+            out[k] = 0x2000 | (pi << 11) | xi
+            k += 1
+            i += 1
+    return k
+
+
+def encode(t, x, y, p) -> bytes:
+    """EVT3 bytes (no header) for events with non-decreasing t ≥ 0 µs and x, y < 2048.
+
+    Self-contained: starts with TIME_HIGH, TIME_LOW and ADDR_Y words; timestamps past 2^24 µs are
+    reached by TIME_HIGH steps from 0, so `decode(encode(...))` returns the events exactly, in order.
+    Runs of ≥ 3 events with the same t, y, p and increasing x within 12 pixels go into vector words.
+    """
+    t = np.ascontiguousarray(t, np.int64)
+    x = np.ascontiguousarray(x, np.uint16)
+    y = np.ascontiguousarray(y, np.uint16)
+    p = np.ascontiguousarray(p, np.uint8)
+    n = len(t)
+    if not (len(x) == len(y) == len(p) == n):
+        raise ValueError(f"encode: arrays differ in length (t {n}, x {len(x)}, y {len(y)}, p {len(p)})")
+    if n == 0:
+        return b""
+    bad = _check_kernel(t, x, y, p)
+    if bad >= 0:
+        prev = f" (previous {t[bad - 1]} µs)" if bad else ""
+        raise ValueError(
+            f"encode: event {bad} (t={t[bad]} µs{prev}, x={x[bad]}, y={y[bad]}, p={p[bad]}) cannot be "
+            "written: EVT3 needs non-decreasing t >= 0, x and y < 2048, p 0 or 1"
+        )
+    # room: 4 words per event at most, plus TIME_HIGH steps over long gaps (bounded by the span)
+    ramp = 4 * (int(t[-1] >> 24) + 1) + int(t[-1] >> 12) // _MAX_HIGH_STEP + 2
+    out = np.empty(4 * n + ramp, np.uint16)
+    k = _encode_kernel(t, x, y, p, out)
+    return out[:k].tobytes()
