@@ -4,7 +4,19 @@
 new module here with a `@register("stage", "name")` class, imported below.
 """
 
-from . import cascade, density, oracle, timeseries  # noqa: F401  (registers their stages)
+from . import (  # noqa: F401  (importing a module registers its stages)
+    baf,
+    cascade,
+    density,
+    dwf,
+    hotpixel,
+    khodamoradi,
+    oracle,
+    refractory,
+    stcf,
+    timeseries,
+    ynoise,
+)
 from .base import Classifier
 
 __all__ = ["Classifier"]

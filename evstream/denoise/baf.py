@@ -1,0 +1,86 @@
+"""BAF, the background-activity filter (Delbruck 2008): an event is signal iff a neighbour fired recently.
+
+Event m at (x, y, t) is SIGNAL iff one of its 8 neighbours (the pixel itself excluded, so a lone hot
+pixel cannot support itself) has its latest event at t_j with `t - t_j < tau_us`. State: one int64
+timestamp per pixel, padded by one pixel so the kernel needs no border checks. Defaults follow
+iniVation's reference implementation (libcaer `filters/dvs_noise.c`, also dv-processing's
+`BackgroundActivityNoiseFilter`): tau = 2 ms, strict `<`, polarity ignored, self excluded.
+
+Score: `-(t - t_nearest)` in µs, the age of the most recent neighbour event (-inf if none). The event
+is kept iff `score > -tau_us`, and the state does not depend on tau, so one pass at any tau gives the
+exact ROC curve over tau.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ..events import EventChunk, NoiseClass
+from ..pipeline import register
+from .common import NEVER_US, ScoredClassifier, check, is_int
+
+
+@njit(cache=True, nogil=True)
+def baf_kernel(t, x, y, last, tau_us, out):
+    """Write 0 (SIGNAL) or 1 (BACKGROUND) per event into `out`; `last` is the padded (H+2, W+2)
+    timestamp map, updated in place. Stops at the first supporting neighbour."""
+    for i in range(len(t)):
+        ti = t[i]
+        r = y[i] + 1
+        c = x[i] + 1
+        lim = ti - tau_us  # supported iff a neighbour's last timestamp > lim
+        ok = (last[r - 1, c - 1] > lim or last[r - 1, c] > lim or last[r - 1, c + 1] > lim
+              or last[r, c - 1] > lim or last[r, c + 1] > lim
+              or last[r + 1, c - 1] > lim or last[r + 1, c] > lim or last[r + 1, c + 1] > lim)
+        out[i] = 0 if ok else 1
+        last[r, c] = ti
+
+
+@njit(cache=True, nogil=True)
+def baf_scored_kernel(t, x, y, last, tau_us, out, score):
+    """As `baf_kernel`, also writing the score -(age of the newest neighbour event) in µs."""
+    for i in range(len(t)):
+        ti = t[i]
+        r = y[i] + 1
+        c = x[i] + 1
+        newest = max(last[r - 1, c - 1], last[r - 1, c], last[r - 1, c + 1], last[r, c - 1],
+                     last[r, c + 1], last[r + 1, c - 1], last[r + 1, c], last[r + 1, c + 1])
+        out[i] = 0 if ti - newest < tau_us else 1
+        score[i] = -np.inf if newest == NEVER_US else -float(ti - newest)
+        last[r, c] = ti
+
+
+@register("stage", "baf")
+@dataclass
+class BackgroundActivityFilter(ScoredClassifier):
+    """BAF: SIGNAL iff one of the 8 neighbours fired within `tau_us` before; else BACKGROUND."""
+
+    tau_us: int = 2000
+
+    def __post_init__(self):
+        check(is_int(self.tau_us) and self.tau_us > 0, "baf", f"tau_us must be a positive integer, got "
+                                                              f"{self.tau_us!r}")
+        self.tau_us = int(self.tau_us)
+        self._last = None
+
+    def _allocate(self, g):
+        self._last = np.full((g.height + 2, g.width + 2), NEVER_US, np.int64)
+
+    def classify(self, chunk: EventChunk) -> np.ndarray:
+        self._ensure_state(chunk)
+        out = np.empty(len(chunk), np.uint8)
+        baf_kernel(chunk.t, chunk.x, chunk.y, self._last, self.tau_us, out)
+        return out
+
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        self._ensure_state(chunk)
+        out = np.empty(len(chunk), np.uint8)
+        score = np.empty(len(chunk), np.float64)
+        baf_scored_kernel(chunk.t, chunk.x, chunk.y, self._last, self.tau_us, out, score)
+        return out, score
+
+
+assert NoiseClass.SIGNAL == 0 and NoiseClass.BACKGROUND == 1  # the kernels write these codes
