@@ -46,24 +46,24 @@ class PaperCascade:
         return self.density.window_us + self.timeseries.history_us
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
-        for stage in self._stages:
-            chunk = stage(chunk)
-        return chunk
+        codes = chunk.classes().copy()
+        for stage in self._stages:  # each skips what an earlier one rejected: no gather, no copy
+            stage._run(chunk, codes, want_score=False)
+        return chunk.replace(cls=codes)
 
     def scored(self, chunk: EventChunk) -> tuple[EventChunk, np.ndarray]:
-        """Classify and return one signal-likeness score per event for ROC analysis: the coarse score
-        relative to its threshold (>= 1 passes), or -1 for events the fine stage calls hot. Sweeping a
-        threshold on it traces the coarse threshold with the fine stage at its operating point (the
-        fine stage's history follows the default coarse decisions, so this ROC is an approximation
-        away from the operating point)."""
+        """Classify an unclassified chunk and return one signal-likeness score per event for ROC
+        analysis: the coarse score relative to its threshold (>= 1 passes), or -1 for events the fine
+        stage calls hot. Sweeping a threshold on it traces the coarse threshold with the fine stage at
+        its operating point (the fine stage's history follows the default coarse decisions, so away
+        from the operating point this ROC is an approximation)."""
         d, f = self.density, self.timeseries
-        codes, s_coarse = d.classify_scored(chunk)
+        codes = np.zeros(len(chunk), np.uint8)
+        s_coarse = d._run(chunk, codes, want_score=True)
         thr = d.density_hz if d.mode == "absolute" else 1.0
         score = s_coarse / thr if thr > 0 else s_coarse
-        kept = np.flatnonzero(codes == NoiseClass.SIGNAL)
-        fine_codes, _ = f.classify_scored(chunk[kept])
-        codes[kept] = fine_codes
-        score[kept[fine_codes == NoiseClass.HOT_PIXEL]] = -1.0
+        f._run(chunk, codes, want_score=False)
+        score[codes == NoiseClass.HOT_PIXEL] = -1.0
         return chunk.replace(cls=codes), score
 
     def params(self) -> dict:

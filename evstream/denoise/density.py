@@ -35,11 +35,13 @@ ABSOLUTE, RELATIVE = 0, 1
 
 
 @njit(cache=True, nogil=True)
-def density_kernel(t, x, y, p, start, hsum, padded_width, fifo_t, fifo_pos, fifo_state, per_pol,
-                   radius, window_us, mode, density_hz, rho_rel, match_polarity, clip_border,
-                   width, height, out_keep, out_score):
-    """Classify events `start..` in place (out_keep, out_score); returns the index reached, which is
-    len(t) unless the FIFO is full (the caller grows it and calls again from there).
+def density_kernel(t, x, y, p, start, codes, noise_code, hsum, padded_width, fifo_t, fifo_pos, fifo_state,
+                   per_pol, radius, window_us, mode, density_hz, rho_rel, match_polarity, clip_border,
+                   width, height, want_score, out_score):
+    """Classify events `start..` whose code is SIGNAL (others are skipped: an earlier stage rejected
+    them), writing `noise_code` into `codes` for those in sparse neighbourhoods and, if `want_score`,
+    the score into `out_score`. Returns the index reached: len(t) unless the FIFO is full (the caller
+    grows it and calls again from there).
 
     `hsum` is a flat (planes, H + 2r, W + 2r) map (padded by r) of the window's events summed along
     rows over columns X - r .. X + r, so an event adds to L contiguous cells and a query reads L cells
@@ -53,18 +55,24 @@ def density_kernel(t, x, y, p, start, hsum, padded_width, fifo_t, fifo_pos, fifo
     size = fifo_state[1]
     L = 2 * radius + 1
     window_s = window_us * 1e-6
-    n_pixels = width * height
+    per_area_abs = density_hz * window_s  # absolute: keep iff N >= D_th · area · Δt
+    per_area_rel = rho_rel / (width * height)  # relative: keep iff N >= max(1, ρ_rel · area · g / (W·H))
     plane = (height + 2 * radius) * padded_width
+    full_area = L * L
     i = start
     n = len(t)
     while i < n:
+        if codes[i] != 0:
+            i += 1
+            continue
         ti = t[i]
         oldest = ti - window_us
         while size > 0 and fifo_t[head] <= oldest:
             pos = fifo_pos[head]
             for dx in range(L):
                 hsum[pos + dx] -= 1
-            per_pol[pos // plane] -= 1
+            if match_polarity:
+                per_pol[1 if pos >= plane else 0] -= 1
             head = (head + 1) & mask
             size -= 1
         if size == cap:
@@ -78,26 +86,27 @@ def density_kernel(t, x, y, p, start, hsum, padded_width, fifo_t, fifo_pos, fifo
         for _ in range(L):
             total += hsum[q]
             q += padded_width
+        area = full_area
         if clip_border:
             area = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
                     * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1))
-        else:
-            area = L * L
         if mode == ABSOLUTE:
-            out_score[i] = total / (area * window_s)
-            out_keep[i] = total >= density_hz * area * window_s - 1e-9  # compare counts: no rounding flips
+            threshold = per_area_abs * area - 1e-9  # compare counts: no rounding flips
         else:
             g = per_pol[pl] * 2 if match_polarity else size
-            expected = max(1.0, rho_rel * area * g / n_pixels)
-            out_score[i] = total / expected
-            out_keep[i] = total >= expected
+            threshold = max(1.0, per_area_rel * area * g)
+        if total < threshold:
+            codes[i] = noise_code
+        if want_score:
+            out_score[i] = total / (area * window_s) if mode == ABSOLUTE else total / threshold
         pos = corner + radius * padded_width
         for dx in range(L):
             hsum[pos + dx] += 1
         slot = (head + size) & mask
         fifo_t[slot] = ti
         fifo_pos[slot] = pos
-        per_pol[pl] += 1
+        if match_polarity:
+            per_pol[pl] += 1
         size += 1
         i += 1
     fifo_state[0] = head
@@ -119,7 +128,7 @@ class DensityFilter(Classifier):
     window_us: int = 20_000
     mode: str = "relative"
     density_hz: float = 10.0
-    rho_rel: float = 1.0
+    rho_rel: float = 1.5
     match_polarity: bool = False
     clip_border: bool = False
     noise_class = NoiseClass.BACKGROUND
@@ -168,31 +177,40 @@ class DensityFilter(Classifier):
             s[k] = new
         s["fifo_state"][:] = (0, size)
 
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
-        """Class codes (SIGNAL or BACKGROUND) and scores: ρ(m) in Hz/pixel (absolute mode) or
-        N(m) / max(1, expected count) (relative mode); an event is kept iff its score >= the threshold
-        (D_th, resp. 1)."""
+    def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
+        """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores."""
         s = self._state
         if s is None or s["geometry"] != chunk.geometry:
             s = self._state = self._init(chunk)
         n = len(chunk)
-        keep = np.zeros(n, np.bool_)
-        score = np.zeros(n, np.float64)
+        score = np.zeros(n if want_score else 0, np.float64)
         g = chunk.geometry
         i = 0
         while True:
             i = density_kernel(
-                chunk.t, chunk.x, chunk.y, chunk.p, i, s["hsum"], g.width + 2 * self.radius_px,
-                s["fifo_t"], s["fifo_pos"],
-                s["fifo_state"], s["per_pol"], self.radius_px, self.window_us,
-                ABSOLUTE if self.mode == "absolute" else RELATIVE, float(self.density_hz),
-                float(self.rho_rel), self.match_polarity, self.clip_border, g.width, g.height, keep, score,
+                chunk.t, chunk.x, chunk.y, chunk.p, i, codes, int(self.noise_class), s["hsum"],
+                g.width + 2 * self.radius_px, s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["per_pol"],
+                self.radius_px, self.window_us, ABSOLUTE if self.mode == "absolute" else RELATIVE,
+                float(self.density_hz), float(self.rho_rel), self.match_polarity, self.clip_border,
+                g.width, g.height, want_score, score,
             )
             if i >= n:
-                break
+                return score
             self._grow(s)
-        codes = np.where(keep, np.uint8(NoiseClass.SIGNAL), np.uint8(self.noise_class)).astype(np.uint8)
-        return codes, score
+
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        codes = chunk.classes().copy()
+        self._run(chunk, codes, want_score=False)
+        return chunk.replace(cls=codes)
+
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        """Class codes (SIGNAL or BACKGROUND) and scores of an unclassified chunk: ρ(m) in Hz/pixel
+        (absolute mode) or N(m) / max(1, expected count) (relative mode); an event is kept iff its
+        score >= the threshold (D_th, resp. 1)."""
+        codes = np.zeros(len(chunk), np.uint8)
+        return codes, self._run(chunk, codes, want_score=True)
 
     def classify(self, chunk: EventChunk) -> np.ndarray:
-        return self.classify_scored(chunk)[0]
+        codes = np.zeros(len(chunk), np.uint8)
+        self._run(chunk, codes, want_score=False)
+        return codes

@@ -49,17 +49,21 @@ def _aligned(mask, last_bin, b):
 
 
 @njit(cache=True, nogil=True)
-def dc_kernel(t, x, y, masks, last_bin, radius, bin_us, n_bins, lam, form, width, height,
-              out_hot, out_score):
-    """For each event: update its pixel's activity, compare its DC with its neighbours' mean.
+def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bins, lam, form, width, height,
+              want_score, out_score):
+    """For each event still SIGNAL in `codes`: update its pixel's activity, compare its DC with its
+    neighbours' mean, write `noise_code` when hot (and the score if `want_score`).
 
-    `masks`/`last_bin` are (H + 2r, W + 2r), padded with never-active cells, so the neighbourhood
-    loop needs no bounds checks; the neighbour count is clipped to the sensor arithmetically.
-    `out_score` is DC_m - mean (difference form) or DC_m / mean (ratio form; inf when mean is 0).
+    `masks`/`last_bin` are (H + 2r, W + 2r), padded with never-active cells, so the neighbourhood loop
+    needs no bounds checks; the neighbour count is clipped to the sensor arithmetically. The score is
+    DC_m - mean (difference form) or DC_m / mean (ratio form; inf when mean is 0). Without scores, the
+    difference form skips the neighbours when DC_m <= λ (the event cannot be hot).
     """
-    window = np.uint64(0xFFFFFFFFFFFFFFFF) if n_bins >= 64 else (np.uint64(1) << np.uint64(n_bins)) - np.uint64(1)
+    window = (np.uint64(1) << np.uint64(n_bins)) - np.uint64(1) if n_bins < 64 else ~np.uint64(0)
     L = 2 * radius + 1
     for i in range(len(t)):
+        if codes[i] != 0:
+            continue
         b = t[i] // bin_us
         xi = np.int64(x[i])
         yi = np.int64(y[i])
@@ -68,14 +72,17 @@ def dc_kernel(t, x, y, masks, last_bin, radius, bin_us, n_bins, lam, form, width
         m = (_aligned(masks[cy, cx], last_bin[cy, cx], b) | np.uint64(1)) & window
         masks[cy, cx] = m
         last_bin[cy, cx] = b
+        dc = popcount64(m) / n_bins
+        if form == DIFFERENCE and not want_score and dc <= lam:
+            continue
         active = 0
         for dy in range(L):
             for dx in range(L):
                 if dy != radius or dx != radius:
-                    active += popcount64(_aligned(masks[yi + dy, xi + dx], last_bin[yi + dy, xi + dx], b) & window)
+                    nb = _aligned(masks[yi + dy, xi + dx], last_bin[yi + dy, xi + dx], b)
+                    active += popcount64(nb & window)
         n_nb = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
                 * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1) - 1)
-        dc = popcount64(m) / n_bins
         mean = active / (n_nb * n_bins) if n_nb > 0 else 0.0
         if form == DIFFERENCE:
             score = dc - mean
@@ -83,8 +90,10 @@ def dc_kernel(t, x, y, masks, last_bin, radius, bin_us, n_bins, lam, form, width
         else:
             score = dc / mean if mean > 0 else np.inf
             hot = dc > lam * mean if mean > 0 else dc > lam / n_bins  # guard: quiet neighbours
-        out_hot[i] = hot
-        out_score[i] = score
+        if hot:
+            codes[i] = noise_code
+        if want_score:
+            out_score[i] = score
 
 
 @register("stage", "dc")
@@ -126,8 +135,8 @@ class TimeSeriesFilter(Classifier):
         """History the filter needs before a hot pixel's DC is fully built: n / fs."""
         return self.n_bins * self.bin_us
 
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
-        """Class codes (SIGNAL or HOT_PIXEL) and scores (DC margin or ratio; hot iff > λ)."""
+    def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
+        """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores."""
         s = self._state
         g = chunk.geometry
         if s is None or s["geometry"] != g:
@@ -135,14 +144,24 @@ class TimeSeriesFilter(Classifier):
             shape = (g.height + 2 * r, g.width + 2 * r)
             s = self._state = {"geometry": g, "masks": np.zeros(shape, np.uint64),
                                "last_bin": np.full(shape, np.iinfo(np.int64).min // 2, np.int64)}
-        n = len(chunk)
-        hot = np.zeros(n, np.bool_)
-        score = np.zeros(n, np.float64)
-        dc_kernel(chunk.t, chunk.x, chunk.y, s["masks"], s["last_bin"], self.radius_px, self.bin_us,
-                  self.n_bins, float(self.lam), DIFFERENCE if self.form == "difference" else RATIO,
-                  g.width, g.height, hot, score)
-        codes = np.where(hot, np.uint8(self.noise_class), np.uint8(NoiseClass.SIGNAL)).astype(np.uint8)
-        return codes, score
+        score = np.zeros(len(chunk) if want_score else 0, np.float64)
+        dc_kernel(chunk.t, chunk.x, chunk.y, codes, int(self.noise_class), s["masks"], s["last_bin"],
+                  self.radius_px, self.bin_us, self.n_bins, float(self.lam),
+                  DIFFERENCE if self.form == "difference" else RATIO, g.width, g.height, want_score, score)
+        return score
+
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        codes = chunk.classes().copy()
+        self._run(chunk, codes, want_score=False)
+        return chunk.replace(cls=codes)
+
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        """Class codes (SIGNAL or HOT_PIXEL) and scores (DC margin or ratio; hot iff > λ) of an
+        unclassified chunk."""
+        codes = np.zeros(len(chunk), np.uint8)
+        return codes, self._run(chunk, codes, want_score=True)
 
     def classify(self, chunk: EventChunk) -> np.ndarray:
-        return self.classify_scored(chunk)[0]
+        codes = np.zeros(len(chunk), np.uint8)
+        self._run(chunk, codes, want_score=False)
+        return codes
