@@ -169,8 +169,8 @@ def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept():
     expected[kept] = fine.classify(s[kept])
     assert np.array_equal(got, expected)
     assert set(np.unique(got)) <= {0, 1, 2}
-    scored_chunk, score = PaperCascade(coarse={"window_us": 1000}, fine={"rate_hz": 5000.0}).scored(s)
-    assert np.array_equal(scored_chunk.cls, got)
+    codes, score = PaperCascade(coarse={"window_us": 1000}, fine={"rate_hz": 5000.0}).classify_scored(s)
+    assert np.array_equal(codes, got)
     assert ((score >= 1) == (got == 0)).all()
 
 

@@ -51,8 +51,8 @@ class PaperCascade:
             stage._run(chunk, codes, want_score=False)
         return chunk.replace(cls=codes)
 
-    def scored(self, chunk: EventChunk) -> tuple[EventChunk, np.ndarray]:
-        """Classify an unclassified chunk and return one signal-likeness score per event for ROC
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        """Class codes and one signal-likeness score per event of an unclassified chunk, for ROC
         analysis: the coarse score relative to its threshold (>= 1 passes), or -1 for events the fine
         stage calls hot. Sweeping a threshold on it traces the coarse threshold with the fine stage at
         its operating point (the fine stage's history follows the default coarse decisions, so away
@@ -64,7 +64,10 @@ class PaperCascade:
         score = s_coarse / thr if thr > 0 else s_coarse
         f._run(chunk, codes, want_score=False)
         score[codes == NoiseClass.HOT_PIXEL] = -1.0
-        return chunk.replace(cls=codes), score
+        return codes, score
+
+    def classify(self, chunk: EventChunk) -> np.ndarray:
+        return self(chunk.replace(cls=None)).cls
 
     def params(self) -> dict:
         return {"coarse": self.density.params(), "fine": self.timeseries.params()}
