@@ -121,3 +121,12 @@ def test_real_gen3_file(real_data):
     assert len(t) == 521_252 and t[-1] - t[0] == 95_871  # SOURCES.md: 95.9 ms
     assert x.max() < 640 and y.max() < 480 and abs(p.mean() - 0.357) < 0.001
     assert dec.counters["unknown"] == 0 and dec.counters["time_back"] == 0
+
+
+@given(event_streams(), st.lists(st.integers(0, 200), max_size=5))
+def test_streaming_encoder_output_concatenates_to_one_stream(ev, cuts):
+    n = len(ev[0])
+    edges = [0, *sorted(c for c in cuts if c <= n), n]
+    enc = evt2.Evt2Encoder()
+    data = b"".join(enc.encode(*(a[i:j] for a in ev)) for i, j in zip(edges[:-1], edges[1:]))
+    assert_events_equal(evt2.decode(data), ev)

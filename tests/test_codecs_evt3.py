@@ -259,3 +259,15 @@ def test_real_gen41_file_decodes_spec_literally(real_data, tmp_path):
     # and what we encode from it, faery decodes to our events
     ts = np.maximum.accumulate(t)
     assert_events_equal(_faery_decode(tmp_path, evt3.encode(ts, x, y, p)), (ts, x, y, p))
+
+
+@given(event_streams(), st.lists(st.integers(0, 300), max_size=5))
+def test_streaming_encoder_output_concatenates_to_one_stream(ev, cuts):
+    n = len(ev[0])
+    edges = [0, *sorted(c for c in cuts if c <= n), n]
+    enc = evt3.Evt3Encoder()
+    data = b"".join(enc.encode(*(a[i:j] for a in ev)) for i, j in zip(edges[:-1], edges[1:]))
+    assert_events_equal(evt3.decode(data), ev)
+    if n:
+        with pytest.raises(ValueError, match="cannot be written"):
+            enc.encode(ev[0][-1:] - 1, ev[1][-1:], ev[2][-1:], ev[3][-1:])

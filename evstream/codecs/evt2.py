@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["Evt2Decoder", "decode", "encode"]
+__all__ = ["Evt2Decoder", "Evt2Encoder", "decode", "encode"]
 
 _HIGH, _LOOPS, _HAS_HIGH, _LAST_T = range(4)
 _N_STATE = 4
@@ -139,8 +139,7 @@ _MAX_HIGH_STEP = _WRAP_MIN_DROP - 1
 
 
 @numba.njit(cache=True, nogil=True)
-def _check_kernel(t, x, y, p):
-    prev = np.int64(0)
+def _check_kernel(t, x, y, p, prev):
     for i in range(len(t)):
         if t[i] < prev or x[i] > 0x7FF or y[i] > 0x7FF or p[i] > 1:
             return i
@@ -149,9 +148,10 @@ def _check_kernel(t, x, y, p):
 
 
 @numba.njit(cache=True, nogil=True)
-def _encode_kernel(t, x, y, p, out):
+def _encode_kernel(t, x, y, p, out, state):
+    """EVT2 words for checked events into `out`; `state[0]` is the last TIME_HIGH written (-1: none)."""
     k = 0
-    cur = np.int64(-1)
+    cur = state[0]
     for i in range(len(t)):
         h = t[i] >> 6
         if h != cur:
@@ -167,7 +167,39 @@ def _encode_kernel(t, x, y, p, out):
             cur = h
         out[k] = (np.int64(p[i]) << 28) | ((t[i] & 0x3F) << 22) | (np.int64(x[i]) << 11) | np.int64(y[i])
         k += 1
+    state[0] = cur
     return k
+
+
+class Evt2Encoder:
+    """Streaming EVT2 encoder: successive `encode` calls continue one stream."""
+
+    def __init__(self):
+        self.state = np.array([-1], np.int64)
+        self.last_t = 0
+        self.events_in = 0
+
+    def encode(self, t, x, y, p) -> bytes:
+        t = np.ascontiguousarray(t, np.int64)
+        x = np.ascontiguousarray(x, np.uint16)
+        y = np.ascontiguousarray(y, np.uint16)
+        p = np.ascontiguousarray(p, np.uint8)
+        n = len(t)
+        if not (len(x) == len(y) == len(p) == n):
+            raise ValueError(f"encode: arrays differ in length (t {n}, x {len(x)}, y {len(y)}, p {len(p)})")
+        if n == 0:
+            return b""
+        bad = _check_kernel(t, x, y, p, np.int64(self.last_t))
+        if bad >= 0:
+            raise ValueError(
+                f"encode: event {self.events_in + bad} (t={t[bad]} µs, x={x[bad]}, y={y[bad]}, p={p[bad]}) "
+                "cannot be written: EVT2 needs non-decreasing t >= 0, x and y < 2048, p 0 or 1"
+            )
+        out = np.empty(2 * n + 2 * int(t[-1] >> 34) + 2, np.uint32)
+        k = _encode_kernel(t, x, y, p, out, self.state)
+        self.last_t = int(t[-1])
+        self.events_in += n
+        return out[:k].astype("<u4", copy=False).tobytes()
 
 
 def encode(t, x, y, p) -> bytes:
@@ -175,21 +207,4 @@ def encode(t, x, y, p) -> bytes:
 
     Starts with a TIME_HIGH word, so `decode(encode(...))` returns the events exactly, in order.
     """
-    t = np.ascontiguousarray(t, np.int64)
-    x = np.ascontiguousarray(x, np.uint16)
-    y = np.ascontiguousarray(y, np.uint16)
-    p = np.ascontiguousarray(p, np.uint8)
-    n = len(t)
-    if not (len(x) == len(y) == len(p) == n):
-        raise ValueError(f"encode: arrays differ in length (t {n}, x {len(x)}, y {len(y)}, p {len(p)})")
-    if n == 0:
-        return b""
-    bad = _check_kernel(t, x, y, p)
-    if bad >= 0:
-        raise ValueError(
-            f"encode: event {bad} (t={t[bad]} µs, x={x[bad]}, y={y[bad]}, p={p[bad]}) cannot be written: "
-            "EVT2 needs non-decreasing t >= 0, x and y < 2048, p 0 or 1"
-        )
-    out = np.empty(2 * n + 2 * int(t[-1] >> 34) + 2, np.uint32)
-    k = _encode_kernel(t, x, y, p, out)
-    return out[:k].astype("<u4", copy=False).tobytes()
+    return Evt2Encoder().encode(t, x, y, p)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["Evt3Decoder", "decode", "encode"]
+__all__ = ["Evt3Decoder", "Evt3Encoder", "decode", "encode"]
 
 # state slots of the decoder (an int64 array, so the kernel stays a pure function of arrays)
 _HIGH, _LOW, _Y, _BASE_X, _POL, _LOOPS, _HAS_HIGH, _LAST_T = range(8)
@@ -247,9 +247,8 @@ def _advance_time_high(out, k, frm, to):
 
 
 @numba.njit(cache=True, nogil=True)
-def _check_kernel(t, x, y, p):
-    """Index of the first event EVT3 cannot carry (t < 0 or going back, x/y ≥ 2048, p > 1), else -1."""
-    prev = np.int64(0)
+def _check_kernel(t, x, y, p, prev):
+    """Index of the first event EVT3 cannot carry (t < prev or going back, x/y ≥ 2048, p > 1), else -1."""
     for i in range(len(t)):
         if t[i] < prev or x[i] > 0x7FF or y[i] > 0x7FF or p[i] > 1:
             return i
@@ -258,14 +257,17 @@ def _check_kernel(t, x, y, p):
 
 
 @numba.njit(cache=True, nogil=True)
-def _encode_kernel(t, x, y, p, out):
-    """Write EVT3 words for checked events, in stream order, into `out`; returns the word count."""
+def _encode_kernel(t, x, y, p, out, state):
+    """Write EVT3 words for checked events, in stream order, into `out`; returns the word count.
+
+    `state` = [started, time-high, time-low, y] carries the stream's position across calls.
+    """
     n = len(t)
     k = 0
-    cur_high = np.int64(0)
-    cur_low = np.int64(-1)
-    cur_y = np.int64(-1)
-    started = False
+    started = state[0] != 0
+    cur_high = state[1]
+    cur_low = state[2]
+    cur_y = state[3]
     i = 0
     while i < n:
         ti = t[i]
@@ -315,7 +317,50 @@ def _encode_kernel(t, x, y, p, out):
             out[k] = 0x2000 | (pi << 11) | xi
             k += 1
             i += 1
+    state[0] = 1 if started else 0
+    state[1] = cur_high
+    state[2] = cur_low
+    state[3] = cur_y
     return k
+
+
+class Evt3Encoder:
+    """Streaming EVT3 encoder: successive `encode` calls continue one stream (time base, row).
+
+    The first call's bytes start with TIME_HIGH, TIME_LOW and ADDR_Y; later calls only add what changed,
+    so the concatenation of all outputs decodes to all events. Timestamps must not go back across calls.
+    """
+
+    def __init__(self):
+        self.state = np.array([0, 0, -1, -1], np.int64)
+        self.last_t = 0
+        self.events_in = 0
+
+    def encode(self, t, x, y, p) -> bytes:
+        t = np.ascontiguousarray(t, np.int64)
+        x = np.ascontiguousarray(x, np.uint16)
+        y = np.ascontiguousarray(y, np.uint16)
+        p = np.ascontiguousarray(p, np.uint8)
+        n = len(t)
+        if not (len(x) == len(y) == len(p) == n):
+            raise ValueError(f"encode: arrays differ in length (t {n}, x {len(x)}, y {len(y)}, p {len(p)})")
+        if n == 0:
+            return b""
+        bad = _check_kernel(t, x, y, p, np.int64(self.last_t))
+        if bad >= 0:
+            prev = t[bad - 1] if bad else self.last_t
+            raise ValueError(
+                f"encode: event {self.events_in + bad} (t={t[bad]} µs, previous {prev} µs, x={x[bad]}, "
+                f"y={y[bad]}, p={p[bad]}) cannot be written: EVT3 needs non-decreasing t >= 0, x and y "
+                "< 2048, p 0 or 1"
+            )
+        # room: 4 words per event at most, plus TIME_HIGH steps over long gaps (bounded by the span)
+        ramp = 4 * (int(t[-1] >> 24) + 1) + int(t[-1] >> 12) // _MAX_HIGH_STEP + 2
+        out = np.empty(4 * n + ramp, np.uint16)
+        k = _encode_kernel(t, x, y, p, out, self.state)
+        self.last_t = int(t[-1])
+        self.events_in += n
+        return out[:k].tobytes()
 
 
 def encode(t, x, y, p) -> bytes:
@@ -325,24 +370,4 @@ def encode(t, x, y, p) -> bytes:
     reached by TIME_HIGH steps from 0, so `decode(encode(...))` returns the events exactly, in order.
     Runs of ≥ 3 events with the same t, y, p and increasing x within 12 pixels go into vector words.
     """
-    t = np.ascontiguousarray(t, np.int64)
-    x = np.ascontiguousarray(x, np.uint16)
-    y = np.ascontiguousarray(y, np.uint16)
-    p = np.ascontiguousarray(p, np.uint8)
-    n = len(t)
-    if not (len(x) == len(y) == len(p) == n):
-        raise ValueError(f"encode: arrays differ in length (t {n}, x {len(x)}, y {len(y)}, p {len(p)})")
-    if n == 0:
-        return b""
-    bad = _check_kernel(t, x, y, p)
-    if bad >= 0:
-        prev = f" (previous {t[bad - 1]} µs)" if bad else ""
-        raise ValueError(
-            f"encode: event {bad} (t={t[bad]} µs{prev}, x={x[bad]}, y={y[bad]}, p={p[bad]}) cannot be "
-            "written: EVT3 needs non-decreasing t >= 0, x and y < 2048, p 0 or 1"
-        )
-    # room: 4 words per event at most, plus TIME_HIGH steps over long gaps (bounded by the span)
-    ramp = 4 * (int(t[-1] >> 24) + 1) + int(t[-1] >> 12) // _MAX_HIGH_STEP + 2
-    out = np.empty(4 * n + ramp, np.uint16)
-    k = _encode_kernel(t, x, y, p, out)
-    return out[:k].tobytes()
+    return Evt3Encoder().encode(t, x, y, p)
