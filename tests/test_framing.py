@@ -34,10 +34,10 @@ def _counted(stream: EventChunk, all_events: bool) -> list[bool]:
 
 
 def _counts(stream: EventChunk, members: list[int]) -> np.ndarray:
-    c = np.zeros((2, stream.geometry.height, stream.geometry.width), np.uint32)
+    c = np.zeros((2, stream.geometry.height, stream.geometry.width), np.int64)
     for i in members:
         c[int(stream.p[i]), int(stream.y[i]), int(stream.x[i])] += 1
-    return c
+    return np.minimum(c, 65535).astype(np.uint16)  # counts saturate
 
 
 def ref_time_frames(stream, window_us, next_start, *, all_events=False, max_empty_frames=1000):
@@ -284,3 +284,17 @@ def test_pipeline_carries_frames_and_geometry_change_is_an_error():
     f.push(s)
     with pytest.raises(EventError, match="geometry changed"):
         f.push(random_stream(1, 10, Geometry(30, 20)))
+
+
+@pytest.mark.parametrize("make", [
+    lambda: FixedWindow(window_us=100),
+    lambda: FixedCount(n_events=70_000),
+    lambda: OverlapAccumulation(window_us=100, stride_us=40),
+    lambda: AdaptiveOverlap(window_us=100, n_base=0, overlap_max_us=60),
+], ids=["fw", "fn", "oa", "adaptive"])
+def test_counts_saturate_and_n_events_stays_exact(make):
+    n = 70_000  # on one pixel, all at t 0..49: past the uint16 count
+    s = EventChunk.from_arrays(np.arange(n) * 50 // n, np.full(n, 3), np.full(n, 2), np.ones(n), G)
+    frames = frames_of(make(), [s])
+    assert frames[0].n_events == n and frames[0].counts[1, 2, 3] == 65535
+    assert frames[0].counts.dtype == np.uint16 and frames[0].image[2, 3] == 65535

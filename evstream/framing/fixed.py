@@ -16,14 +16,14 @@ from numba import njit
 
 from ..events import EventChunk, Frame
 from ..pipeline import register
-from .base import FramerBase, check_positive_int, watermark
+from .base import COUNT_MAX, FramerBase, check_positive_int, watermark
 
 NEVER_US = 1 << 62  # a deadline no stream reaches
 
 
 @njit(cache=True, nogil=True)
 def fw_run(t, x, y, p, cls, use_cls, i, end_us, counts, width, hw):
-    """Add counted events from index i on while t < end_us to the flat counts [p][y][x].
+    """Add counted events from index i on while t < end_us to the flat counts [p][y][x] (saturating).
 
     Returns (index of the first event at or past end_us, or len(t); events added)."""
     n = len(t)
@@ -32,7 +32,9 @@ def fw_run(t, x, y, p, cls, use_cls, i, end_us, counts, width, hw):
         if t[i] >= end_us:
             break
         if not use_cls or cls[i] == 0:
-            counts[p[i] * hw + y[i] * width + x[i]] += 1
+            f = p[i] * hw + y[i] * width + x[i]
+            if counts[f] != COUNT_MAX:
+                counts[f] += 1
             added += 1
         i += 1
     return i, added
@@ -54,7 +56,9 @@ def fn_run(t, x, y, p, cls, use_cls, i, counts, width, hw, n_have, n_target, fir
         if not use_cls or cls[i] == 0:
             if n_have == 0:
                 first_t = ti
-            counts[p[i] * hw + y[i] * width + x[i]] += 1
+            f = p[i] * hw + y[i] * width + x[i]
+            if counts[f] != COUNT_MAX:
+                counts[f] += 1
             n_have += 1
             last_t = ti
             if n_have == n_target:

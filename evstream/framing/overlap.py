@@ -22,7 +22,7 @@ from numba import njit
 
 from ..events import EventChunk, Frame
 from ..pipeline import register
-from .base import FramerBase, check_nonnegative_int, check_positive_int, watermark
+from .base import COUNT_MAX, FramerBase, check_nonnegative_int, check_positive_int, watermark
 
 INITIAL_BUFFER_EVENTS = 1 << 14
 
@@ -41,7 +41,8 @@ def slide_run(t, x, y, p, cls, use_cls, i, end_us, counts, width, hw, buf_t, buf
             break
         if not use_cls or cls[i] == 0:
             f = p[i] * hw + y[i] * width + x[i]
-            counts[f] += 1
+            if counts[f] != COUNT_MAX:
+                counts[f] += 1
             buf_t[tail] = ti
             buf_f[tail] = f
             tail += 1
@@ -52,16 +53,11 @@ def slide_run(t, x, y, p, cls, use_cls, i, end_us, counts, width, hw, buf_t, buf
 
 @njit(cache=True, nogil=True)
 def add_flat(counts, flat, a, b):
-    """counts[flat[j]] += 1 for j in [a, b)."""
+    """counts[flat[j]] += 1 for j in [a, b), saturating."""
     for j in range(a, b):
-        counts[flat[j]] += 1
-
-
-@njit(cache=True, nogil=True)
-def sub_flat(counts, flat, a, b):
-    """counts[flat[j]] -= 1 for j in [a, b)."""
-    for j in range(a, b):
-        counts[flat[j]] -= 1
+        f = flat[j]
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
 
 
 class SlidingFramer(FramerBase):
@@ -137,20 +133,13 @@ class SlidingFramer(FramerBase):
             self._close(out)
 
     def _close(self, out: list[Frame]) -> None:
-        """Emit the current frame and make the next one current, its counts derived from this one's."""
+        """Emit the current frame and make the next one current."""
         n = self.n
         nxt = self._next_start(self.start, n)
         j = self.head + int(np.searchsorted(self.buf_t[self.head : self.tail], nxt, side="left"))
-        stay = self.tail - j
         if n == 0:
             out.append(self._frame(self.start, self.end, 0, None))
-        elif stay == 0:
-            out.append(self._frame(self.start, self.end, n, self.counts))
-            self.counts = self._new_counts()
-        elif j - self.head <= stay:  # fewer events leave than stay: copy, then subtract those leaving
-            out.append(self._frame(self.start, self.end, n, self.counts.copy()))
-            sub_flat(self.counts, self.buf_f, self.head, j)
-        else:  # rebuild the next frame from the events that stay
+        else:  # hand the counts to the frame; rebuild the next frame's from the events that stay
             out.append(self._frame(self.start, self.end, n, self.counts))
             self.counts = self._new_counts()
             add_flat(self.counts, self.buf_f, j, self.tail)
