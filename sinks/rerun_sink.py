@@ -1,8 +1,20 @@
 """Rerun sink: events as a 3D X-Y-T point cloud split by noise class, frames as images, stats as scalars.
 
-Entities: `events/signal`, `events/noise/background`, `events/noise/hot_pixel` (Points3D with class
-ids resolved by an AnnotationContext, so each class toggles in the viewer's tree), `frames` (Image),
-`stats/*` (Scalars). Time: the `event_time` timeline, in event-clock µs from the first event.
+One recording, timeline `event_time` (event-clock time since the first event). Entities:
+
+- `events/signal`, `events/noise/background`, `events/noise/hot_pixel` — Points3D at (x, y, -t·scale),
+  one row per `time_bin_us` of event time, class ids resolved by the AnnotationContext on `events`
+  (colours, labels), so each class toggles in the viewer's tree and the visible time range of the
+  3D view cuts a slab whose depth is `slab_ms`;
+- `events` — a Transform3D moving with event time, so the newest events sit at depth 0 and older ones
+  recede: the slab stays in front of the camera while the stream flows through it (the paper's
+  Figure 1, animated); `slab` is a wireframe box marking it;
+- `frames/<framer>` — Image (OFF black, ON white, gray background: the paper's rendering);
+- `stats/events/rate_hz`, `stats/noise_fraction/{background,hot_pixel}` per `stats_bin_us` of event
+  time, `stats/frames/rate_hz`, `stats/frames/events_per_frame` per frame.
+
+The 3D view may subsample to `point_budget_hz` (points per second of event time, a token bucket), and
+counts what it drops in `points_dropped`; frames and statistics always use every event.
 """
 
 from __future__ import annotations
@@ -11,127 +23,356 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from evstream.events import NoiseClass
+from evstream.events import N_CLASSES, EventChunk, Frame, Geometry, NoiseClass
 from evstream.pipeline import Batch, RunStats
 
+TIMELINE = "event_time"
 CLASS_ENTITIES = {
     NoiseClass.SIGNAL: "events/signal",
     NoiseClass.BACKGROUND: "events/noise/background",
     NoiseClass.HOT_PIXEL: "events/noise/hot_pixel",
 }
-CLASS_COLOURS = {  # RGB: signal in light blue, background activity in orange, hot pixels in magenta
-    NoiseClass.SIGNAL: (80, 170, 255),
-    NoiseClass.BACKGROUND: (255, 150, 30),
-    NoiseClass.HOT_PIXEL: (240, 40, 200),
+CLASS_LABELS = {NoiseClass.SIGNAL: "signal", NoiseClass.BACKGROUND: "background activity",
+                NoiseClass.HOT_PIXEL: "hot pixel"}
+CLASS_COLOURS = {  # RGB, apart on a dark background and for common colour blindness
+    NoiseClass.SIGNAL: (80, 170, 255),  # light blue
+    NoiseClass.BACKGROUND: (255, 150, 30),  # orange
+    NoiseClass.HOT_PIXEL: (240, 40, 200),  # magenta
 }
-TIMELINE = "event_time"
+SLAB_COLOUR = (110, 110, 110)
+NOW_COLOUR = (235, 235, 235)
+STATS_BIN_US = 10_000
 
 
-def blueprint(slab_ms: float = 100.0) -> rrb.Blueprint:
-    """3D X-Y-T view showing a sliding slab of the last `slab_ms`, a frame view and time series."""
+def _us(t_us) -> np.ndarray:
+    """µs (scalar or array) -> a duration array Rerun stores exactly (ns)."""
+    return np.asarray(t_us, np.int64).astype("timedelta64[us]")
+
+
+# -- layout ---------------------------------------------------------------------------------------
+EYE_OFFSET = (1.2, -0.7, -0.95)  # eye position: x in sensor widths, y in heights, z in slab depths
+
+
+def _eye(geometry: Geometry) -> dict:
+    """Eye above, right of and in front of the sensor plane, looking into the slab (image up is -y),
+    so time recedes to the upper right."""
+    w, h, depth = geometry.width, geometry.height, slab_depth(geometry)
+    ox, oy, oz = EYE_OFFSET
+    return {"position": (ox * w, oy * h, oz * depth), "look_target": (0.5 * w, 0.5 * h, 0.5 * depth)}
+
+
+def slab_depth(geometry: Geometry) -> float:
+    """Depth of the slab along T, in pixel units: 1.5 sensor widths reads well at any sensor size."""
+    return 1.5 * max(geometry.width, geometry.height)
+
+
+def blueprint(geometry: Geometry, slab_ms: float = 100.0, framer: str | None = None,
+              play_state: str | None = None) -> rrb.Blueprint:
+    """The default layout: 3D X-Y-T slab of the last `slab_ms`, the frame view, the time series.
+
+    `play_state` "following" keeps the time cursor on the newest data (live streams, screenshots);
+    None lets the viewer choose (it plays a file from the start).
+    """
     slab = rrb.VisibleTimeRange(
         TIMELINE,
         start=rrb.TimeRangeBoundary.cursor_relative(seconds=-slab_ms / 1000),
         end=rrb.TimeRangeBoundary.cursor_relative(),
     )
+    eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=(0.0, -1.0, 0.0), **_eye(geometry))
+    events_view = rrb.Spatial3DView(
+        origin="/", contents=["events/**", "slab/**"], name=f"events X-Y-T (last {slab_ms:g} ms)",
+        time_ranges=slab, eye_controls=eye, line_grid=rrb.LineGrid3D(visible=False),
+    )
+    series = [rrb.TimeSeriesView(origin="stats/events", name="event rate [events/s]"),
+              rrb.TimeSeriesView(origin="stats/noise_fraction", name="noise fraction")]
+    if framer is None:  # no frames to show: the time series take the column
+        side = rrb.Vertical(*series)
+    else:
+        series.append(rrb.Tabs(
+            rrb.TimeSeriesView(origin="stats/frames/rate_hz", name="frame rate [Hz]"),
+            rrb.TimeSeriesView(origin="stats/frames/events_per_frame", name="events per frame"),
+        ))
+        frames_view = rrb.Spatial2DView(origin=f"frames/{framer}", name=f"frames ({framer})")
+        side = rrb.Vertical(frames_view, rrb.Vertical(*series), row_shares=[2, 3])
+    panel = rrb.TimePanel(timeline=TIMELINE, state="collapsed", play_state=play_state)
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="/", contents="events/**", name="events X-Y-T", time_ranges=slab),
-            rrb.Vertical(
-                rrb.Spatial2DView(origin="frames", name="frames"),
-                rrb.TimeSeriesView(origin="stats", name="stats"),
-            ),
-            column_shares=[3, 2],
-        ),
+        rrb.Horizontal(events_view, side, column_shares=[3, 2]),
+        panel,
         collapse_panels=True,
     )
 
 
-class RerunSink:
-    """Logs batches to a `rr.RecordingStream` (already connected to a viewer, file or server).
+# -- pieces that keep state across chunks --------------------------------------------------------
+class PointBudget:
+    """Token bucket over event time: at most `rate_hz` points per second of events (plus a saved-up
+    burst of at most `burst_s` worth); picks evenly spaced events within a chunk. `dropped` counts
+    what it left out."""
 
-    `t_scale_px_per_ms` sets how far 1 ms of event time reaches along the T axis; `point_budget`
-    caps the 3D points logged per batch (uniform subsampling, counted in `points_dropped`) — frames
-    and statistics always use every event.
+    def __init__(self, rate_hz: float | None, burst_s: float = 0.1):
+        self.rate_hz = rate_hz
+        self.capacity = None if rate_hz is None else max(1.0, rate_hz * burst_s)
+        self.tokens = self.capacity
+        self.t_last: int | None = None
+        self.dropped = 0
+
+    def select(self, t: np.ndarray) -> np.ndarray | None:
+        """Indices of the events to draw, or None for all of them."""
+        n = len(t)
+        if self.rate_hz is None or n == 0:
+            return None
+        t_prev = int(t[0]) if self.t_last is None else self.t_last
+        # saved-up tokens are capped; this chunk's own span of event time is not
+        self.tokens = min(self.capacity, self.tokens) + self.rate_hz * (int(t[-1]) - t_prev) * 1e-6
+        self.t_last = int(t[-1])
+        k = min(n, int(self.tokens))
+        self.tokens -= k
+        if k == n:
+            return None
+        self.dropped += n - k
+        return (np.arange(k, dtype=np.int64) * n) // k
+
+
+class StatsBins:
+    """Events per class in fixed bins of event time (`bin_us`, anchored at `t0`).
+
+    `push` returns the bins that closed — a bin closes when a later event or the watermark passes
+    its end — as (bin end µs, counts[k, 3]). A run of empty bins yields its first and last bin only,
+    so a long gap costs two rows. `flush` closes the open bin at the end of the stream.
     """
 
-    def __init__(self, stream: rr.RecordingStream, *, t_scale_px_per_ms: float = 2.0,
-                 point_budget: int | None = 200_000, slab_ms: float = 100.0, seed: int = 0):
-        self.rec = stream
-        self.t_scale = t_scale_px_per_ms / 1000.0
-        self.point_budget = point_budget
-        self.points_dropped = 0
-        self.t0: int | None = None
-        self._rng = np.random.default_rng(seed)
-        self.rec.send_blueprint(blueprint(slab_ms))
-        self.rec.log(
-            "events",
-            rr.AnnotationContext([
-                rr.AnnotationInfo(id=int(c), label=c.name.lower(), color=CLASS_COLOURS[c]) for c in NoiseClass
-            ]),
-            static=True,
-        )
-        self.rec.log("events", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
+    def __init__(self, t0: int, bin_us: int = STATS_BIN_US):
+        self.t0 = t0
+        self.bin_us = bin_us
+        self.open_bin = 0
+        self.open_counts = np.zeros(N_CLASSES, np.int64)
 
+    def push(self, t: np.ndarray, cls: np.ndarray, t_end: int) -> tuple[np.ndarray, np.ndarray]:
+        ends: list[np.ndarray] = []
+        counts: list[np.ndarray] = []
+        if len(t):
+            b = (t - self.t0) // self.bin_us
+            first = b[0]
+            if first > self.open_bin:  # the open bin closed before this chunk
+                self._close_through(first, ends, counts)
+            last = int(b[-1])
+            local = (b - self.open_bin).astype(np.int64)
+            span = last - self.open_bin + 1
+            per = np.bincount(local * N_CLASSES + cls, minlength=span * N_CLASSES)
+            per = per.reshape(span, N_CLASSES)
+            per[0] += self.open_counts
+            nonempty = np.flatnonzero(per.sum(axis=1))
+            closed = nonempty[nonempty < span - 1]
+            idx = self._with_gap_edges(closed, span - 1)
+            if len(idx):
+                ends.append((self.open_bin + idx + 1) * self.bin_us + self.t0)
+                counts.append(per[idx])
+            self.open_bin = last
+            self.open_counts = per[-1].copy()
+        wm_bin = (t_end - self.t0) // self.bin_us if t_end > self.t0 else 0
+        if wm_bin > self.open_bin and t_end - self.t0 >= (self.open_bin + 1) * self.bin_us:
+            self._close_through(wm_bin, ends, counts)
+        if not ends:
+            return np.zeros(0, np.int64), np.zeros((0, N_CLASSES), np.int64)
+        return np.concatenate(ends), np.concatenate(counts)
+
+    def _with_gap_edges(self, nonempty: np.ndarray, next_bin: int) -> np.ndarray:
+        """Nonempty bin indices plus the first and last empty bin of each gap before `next_bin`."""
+        if len(nonempty) == 0:
+            return nonempty
+        bounds = np.append(nonempty, next_bin)
+        gap_start = bounds[:-1] + 1
+        gap_stop = bounds[1:] - 1
+        has_gap = gap_start <= gap_stop
+        out = np.concatenate((nonempty, gap_start[has_gap], gap_stop[has_gap]))
+        return np.unique(out)
+
+    def _close_through(self, new_open: int, ends: list, counts: list) -> None:
+        """Close the open bin (and the empty ones up to `new_open`), make `new_open` the open bin."""
+        idx = [self.open_bin]
+        if new_open - self.open_bin > 1:
+            idx += sorted({self.open_bin + 1, new_open - 1})
+        rows = np.zeros((len(idx), N_CLASSES), np.int64)
+        rows[0] = self.open_counts
+        ends.append((np.asarray(idx, np.int64) + 1) * self.bin_us + self.t0)
+        counts.append(rows)
+        self.open_bin = int(new_open)
+        self.open_counts = np.zeros(N_CLASSES, np.int64)
+
+    def flush(self, t_last: int) -> tuple[np.ndarray, np.ndarray]:
+        """Close the open bin, ending it at the last event (a partial bin keeps an honest rate)."""
+        end = min(t_last + 1, self.t0 + (self.open_bin + 1) * self.bin_us)
+        return np.array([end], np.int64), self.open_counts[None, :].copy()
+
+
+# -- the sink ---------------------------------------------------------------------------------------
+class RerunSink:
+    """Logs batches to a `rr.RecordingStream` (already saving to a file or connected to a viewer).
+
+    `time_bin_us`: event time per logged row of points (how smoothly the slab slides);
+    `point_budget_hz`: most 3D points per second of event time (None: every event);
+    `slab_ms`: depth of the visible time range; `framer`: name of the frame entity;
+    `play_state`: passed to the blueprint ("following" for live viewing).
+    """
+
+    def __init__(self, stream: rr.RecordingStream, *, geometry: Geometry | None = None,
+                 slab_ms: float = 100.0, time_bin_us: int = 1000, point_budget_hz: float | None = 1e6,
+                 framer: str | None = None, play_state: str | None = None,
+                 stats_bin_us: int = STATS_BIN_US, point_radius_ui: float = 1.5):
+        if slab_ms <= 0 or time_bin_us <= 0 or stats_bin_us <= 0:
+            raise ValueError("slab_ms, time_bin_us and stats_bin_us must be positive")
+        if point_budget_hz is not None and point_budget_hz <= 0:
+            raise ValueError(f"point budget must be positive, got {point_budget_hz}")
+        self.rec = stream
+        self.slab_ms = slab_ms
+        self.time_bin_us = int(time_bin_us)
+        self.stats_bin_us = int(stats_bin_us)
+        self.framer = framer
+        self.play_state = play_state
+        self.point_radius_ui = point_radius_ui
+        self.budget = PointBudget(point_budget_hz)
+        self.geometry: Geometry | None = None
+        self.t0: int | None = None
+        self.t_last: int | None = None
+        self.points_logged = 0
+        self.frames_logged = 0
+        self._stats: StatsBins | None = None
+        self._last_frame_end: int | None = None
+        if geometry is not None:
+            self._start(geometry, None)
+
+    @property
+    def points_dropped(self) -> int:
+        return self.budget.dropped
+
+    # -- setup ---------------------------------------------------------------------------------
+    def _start(self, geometry: Geometry, t0: int | None) -> None:
+        """Blueprint and static entities, once the sensor geometry is known."""
+        self.geometry = geometry
+        self.scale = slab_depth(geometry) / (self.slab_ms * 1000.0)  # depth units per µs
+        rec = self.rec
+        rec.send_blueprint(blueprint(geometry, self.slab_ms, self.framer, self.play_state))
+        rec.log("/", rr.ViewCoordinates.RDF, static=True)  # x right, y down (image rows), z away
+        rec.log("events", rr.AnnotationContext([
+            rr.AnnotationInfo(id=int(c), label=CLASS_LABELS[c], color=CLASS_COLOURS[c]) for c in NoiseClass
+        ]), static=True)
+        radius = rr.Radius.ui_points(self.point_radius_ui)
+        for c, entity in CLASS_ENTITIES.items():
+            rec.log(entity, rr.Points3D.from_fields(class_ids=[int(c)], radii=[radius], show_labels=False),
+                    static=True)
+        self._log_slab_outline(geometry)
+        rec.log("stats/noise_fraction/background", rr.SeriesLines(
+            colors=[CLASS_COLOURS[NoiseClass.BACKGROUND]], names=["background activity"]), static=True)
+        rec.log("stats/noise_fraction/hot_pixel", rr.SeriesLines(
+            colors=[CLASS_COLOURS[NoiseClass.HOT_PIXEL]], names=["hot pixel"]), static=True)
+        rec.log("stats/events/rate_hz", rr.SeriesLines(colors=[(220, 220, 220)], names=["events/s"]),
+                static=True)
+        if t0 is not None:
+            self.t0 = t0
+
+    def _log_slab_outline(self, geometry: Geometry) -> None:
+        """A wireframe box around the slab; its front face (the newest events) drawn brighter."""
+        w, h, depth = geometry.width, geometry.height, slab_depth(geometry)
+        self.rec.log("slab", rr.Boxes3D(centers=[(w / 2, h / 2, depth / 2)], half_sizes=[(w / 2, h / 2, depth / 2)],
+                                        colors=[SLAB_COLOUR], radii=rr.Radius.ui_points(0.75),
+                                        fill_mode="majorwireframe"), static=True)
+        self.rec.log("slab/now", rr.LineStrips3D([[(0, 0, 0), (w, 0, 0), (w, h, 0), (0, h, 0), (0, 0, 0)]],
+                                                 colors=[NOW_COLOUR], radii=rr.Radius.ui_points(1.25)),
+                     static=True)
+        self.rec.log("slab/axes", rr.Points3D(
+            [(0, -0.04 * h, 0), (w, -0.04 * h, 0), (0, -0.04 * h, depth), (-0.04 * w, h, 0)],
+            labels=["now", f"x {w}", f"-{self.slab_ms:g} ms", f"y {h}"], colors=[NOW_COLOUR],
+            radii=rr.Radius.ui_points(0.1)), static=True)
+
+    # -- Sink protocol ---------------------------------------------------------------------------
     def write(self, batch: Batch) -> None:
         ev = batch.events
+        if self.geometry is None:
+            self._start(ev.geometry, None)
         if len(ev):
             if self.t0 is None:
                 self.t0 = int(ev.t[0])
-            ev = self._subsample(ev)
-            self.rec.set_time(TIMELINE, duration=(int(batch.events.t[-1]) - self.t0) * 1e-6)
-            cls = ev.classes()
-            for c, entity in CLASS_ENTITIES.items():
-                sel = np.flatnonzero(cls == c)
-                if len(sel):
-                    pos = np.column_stack((ev.x[sel], ev.y[sel], (ev.t[sel] - self.t0) * self.t_scale))
-                    points = rr.Points3D(pos.astype(np.float32), class_ids=np.full(len(sel), int(c)),
-                                         radii=rr.Radius.ui_points(1.5))
-                    self.rec.log(entity, points)
-            self._log_stats(batch)
-        for frame in batch.frames:
-            if self.t0 is None:
-                self.t0 = frame.t_start
-            self.rec.set_time(TIMELINE, duration=(frame.t_end - self.t0) * 1e-6)
-            self.rec.log("frames", rr.Image(_render(frame.image)))
-
-    def _subsample(self, ev):
-        if self.point_budget is None or len(ev) <= self.point_budget:
-            return ev
-        keep = np.sort(self._rng.choice(len(ev), self.point_budget, replace=False))
-        self.points_dropped += len(ev) - self.point_budget
-        return ev[keep]
-
-    def _log_stats(self, batch: Batch) -> None:
-        ev = batch.events
-        span_s = max(ev.duration_us, 1) * 1e-6
-        self.rec.log("stats/event_rate_hz", rr.Scalars(len(ev) / span_s))
-        counts = np.bincount(ev.classes(), minlength=3)[:3]
-        for c in (NoiseClass.BACKGROUND, NoiseClass.HOT_PIXEL):
-            self.rec.log(f"stats/noise_fraction/{c.name.lower()}", rr.Scalars(counts[c] / len(ev)))
+                self._stats = StatsBins(self.t0, self.stats_bin_us)
+            self.t_last = int(ev.t[-1])
+            self._log_points(ev)
+            self._log_stats(*self._stats.push(ev.t, ev.classes(), ev.t_end))
+        elif self._stats is not None and ev.t_end > (self.t_last or ev.t_end):
+            self._log_stats(*self._stats.push(ev.t, ev.classes(), ev.t_end))
+        self._log_frames(batch.frames)
 
     def close(self, stats: RunStats) -> None:
+        if self._stats is not None and self.t_last is not None:
+            self._log_stats(*self._stats.flush(self.t_last))
         self.rec.flush()
 
+    # -- logging ---------------------------------------------------------------------------------
+    def _log_points(self, ev: EventChunk) -> None:
+        keep = self.budget.select(ev.t)
+        if keep is not None:
+            ev = ev[keep]
+        if not len(ev):
+            return
+        rel = ev.t - self.t0
+        bins = rel // self.time_bin_us
+        # Slab transform: one row per bin, newest events at depth 0.
+        change = np.flatnonzero(np.diff(bins)) + 1
+        ends_idx = np.append(change, len(ev)) - 1
+        row_t = rel[ends_idx]
+        self.rec.send_columns(
+            "events", indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))],
+            columns=rr.Transform3D.columns(translation=np.column_stack(
+                (np.zeros(len(row_t)), np.zeros(len(row_t)), row_t * self.scale)).astype(np.float32)),
+        )
+        pos = np.empty((len(ev), 3), np.float32)
+        pos[:, 0] = ev.x
+        pos[:, 1] = ev.y
+        pos[:, 2] = rel * -self.scale
+        cls = ev.classes()
+        for c, entity in CLASS_ENTITIES.items():
+            sel = np.flatnonzero(cls == c)
+            if not len(sel):
+                continue
+            b = bins[sel]
+            cut = np.flatnonzero(np.diff(b)) + 1
+            lengths = np.diff(np.concatenate(([0], cut, [len(sel)])))
+            last = np.append(cut, len(sel)) - 1
+            self.rec.send_columns(
+                entity, indexes=[rr.TimeColumn(TIMELINE, duration=_us(rel[sel][last]))],
+                columns=rr.Points3D.columns(positions=pos[sel]).partition(lengths),
+            )
+        self.points_logged += len(ev)
 
-def _render(signed: np.ndarray) -> np.ndarray:
+    def _log_stats(self, ends_us: np.ndarray, counts: np.ndarray) -> None:
+        if not len(ends_us):
+            return
+        starts = np.maximum(ends_us - self.stats_bin_us, self.t0)
+        span_s = np.maximum(ends_us - starts, 1) * 1e-6
+        total = counts.sum(axis=1)
+        times = [rr.TimeColumn(TIMELINE, duration=_us(ends_us - self.t0))]
+        self.rec.send_columns("stats/events/rate_hz", indexes=times,
+                              columns=rr.Scalars.columns(scalars=total / span_s))
+        some = total > 0
+        if some.any():
+            t_some = [rr.TimeColumn(TIMELINE, duration=_us(ends_us[some] - self.t0))]
+            for c in (NoiseClass.BACKGROUND, NoiseClass.HOT_PIXEL):
+                self.rec.send_columns(f"stats/noise_fraction/{c.name.lower()}", indexes=t_some,
+                                      columns=rr.Scalars.columns(scalars=counts[some, c] / total[some]))
+
+    def _log_frames(self, frames: list[Frame]) -> None:
+        for frame in frames:
+            if self.t0 is None:
+                self.t0 = frame.t_start
+            self.rec.set_time(TIMELINE, duration=np.timedelta64(int(frame.t_end - self.t0), "us"))
+            self.rec.log(f"frames/{self.framer or 'frames'}", rr.Image(render_frame(frame.image)))
+            self.rec.log("stats/frames/events_per_frame", rr.Scalars(frame.n_events))
+            if self._last_frame_end is not None and frame.t_end > self._last_frame_end:
+                self.rec.log("stats/frames/rate_hz", rr.Scalars(1e6 / (frame.t_end - self._last_frame_end)))
+            self._last_frame_end = frame.t_end
+            self.frames_logged += 1
+
+
+def render_frame(signed: np.ndarray) -> np.ndarray:
     """Signed counts -> gray image with ON white, OFF black (the paper's figures)."""
     img = np.full(signed.shape, 128, np.uint8)
     img[signed > 0] = 255
     img[signed < 0] = 0
     return img
-
-
-def open_stream(*, save: str | None = None, spawn: bool = False, connect: str | None = None,
-                application_id: str = "evstream") -> rr.RecordingStream:
-    """A recording stream writing to a file (`save`), a spawned viewer, or a running viewer's URL."""
-    rec = rr.RecordingStream(application_id)
-    if save:
-        rec.save(save)
-    elif spawn:
-        rec.spawn()
-    elif connect:
-        rec.connect_grpc(connect)
-    else:
-        raise ValueError("choose where Rerun output goes: save, spawn or connect")
-    return rec

@@ -1,0 +1,164 @@
+"""Where a Rerun recording goes: an `.rrd` file, a spawned desktop viewer, a served web viewer, or a
+viewer already running.
+
+rerun-sdk 0.41's own `spawn` and `serve_grpc`/`serve_web_viewer` listen on all interfaces and take no
+bind address, so the viewer and the server here are the `rerun` binary shipped in the wheel, started
+with `--bind` (127.0.0.1 unless the user names another address), and the SDK connects to them over
+gRPC like any client. The memory limit goes to the viewer (`--memory-limit`: it drops the oldest data
+past it) or to the server's buffer for late-joining web viewers (`--server-memory-limit`).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import quote
+
+import rerun as rr
+
+DEFAULT_GRPC_PORT = 9876
+DEFAULT_WEB_PORT = 9090
+DEFAULT_MEMORY_LIMIT = "25%"
+
+
+def rerun_binary() -> str:
+    """The viewer binary from the installed wheel (the same version as the SDK)."""
+    import rerun_cli
+
+    path = Path(rerun_cli.__file__).parent / "rerun"
+    if not path.is_file():
+        raise OSError(f"the rerun viewer binary is missing from the rerun-sdk wheel ({path})")
+    return str(path)
+
+
+def has_display() -> bool:
+    """Whether a desktop viewer could open a window here."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _connect_host(bind: str) -> str:
+    """Address a local client uses to reach a server bound to `bind`."""
+    return "127.0.0.1" if bind in ("0.0.0.0", "", "::", "[::]") else bind
+
+
+def is_listening(host: str, port: int, timeout_s: float = 0.2) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port nothing listens on right now (the OS picks it)."""
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def _port_or_free(host: str, port: int) -> int:
+    return free_port(host) if is_listening(_connect_host(host), port) else port
+
+
+def _wait_listening(proc: subprocess.Popen, host: str, ports: list[int], timeout_s: float, log: Path) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            tail = log.read_text(errors="replace").strip().splitlines()[-1:] if log.exists() else []
+            raise OSError(f"the rerun viewer exited with code {proc.returncode}: {' '.join(tail) or 'no output'}")
+        if all(is_listening(host, p) for p in ports):
+            return
+        time.sleep(0.05)
+    proc.terminate()
+    raise OSError(f"the rerun viewer did not listen on {host}:{ports} within {timeout_s:.0f} s (log: {log})")
+
+
+@dataclass
+class RerunOutput:
+    """An open recording stream and what it is connected to (a child process, URLs to show)."""
+
+    rec: rr.RecordingStream
+    mode: str  # "save", "spawn", "serve", "connect"
+    process: subprocess.Popen | None = None
+    path: str | None = None
+    grpc_url: str | None = None
+    web_url: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    def finish(self) -> None:
+        """Flush and detach the SDK (the file gets its footer; a viewer or server keeps the data)."""
+        self.rec.flush()
+        self.rec.disconnect()
+
+    def stop(self) -> None:
+        """End a server this process started (spawned desktop viewers stay open)."""
+        if self.process is not None and self.mode == "serve" and self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+
+
+def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = False,
+                connect: str | None = None, bind: str = "127.0.0.1",
+                memory_limit: str = DEFAULT_MEMORY_LIMIT, grpc_port: int = DEFAULT_GRPC_PORT,
+                web_port: int = DEFAULT_WEB_PORT, application_id: str = "evstream",
+                log_dir: str | os.PathLike | None = None) -> RerunOutput:
+    """Open a recording stream for exactly one of `save`, `spawn`, `serve`, `connect`."""
+    chosen = [m for m, on in (("save", save), ("spawn", spawn), ("serve", serve), ("connect", connect)) if on]
+    if len(chosen) != 1:
+        raise ValueError(f"choose one Rerun output (save, spawn, serve or connect), got {chosen or 'none'}")
+    rec = rr.RecordingStream(application_id)
+    log_dir = Path(log_dir) if log_dir else Path(os.environ.get("TMPDIR", "/tmp"))
+    if save:
+        Path(save).parent.mkdir(parents=True, exist_ok=True)
+        rec.save(save)
+        return RerunOutput(rec, "save", path=save)
+    if connect:
+        rec.connect_grpc(connect)
+        return RerunOutput(rec, "connect", grpc_url=connect)
+    exe = rerun_binary()
+    host = _connect_host(bind)
+    if spawn:
+        url = f"rerun+http://{host}:{grpc_port}/proxy"
+        if is_listening(host, grpc_port):  # a viewer is already there: log into it, as rr.spawn does
+            rec.connect_grpc(url)
+            return RerunOutput(rec, "spawn", grpc_url=url, notes=[f"using the viewer at {url}"])
+        log = log_dir / f"evstream-rerun-viewer-{grpc_port}.log"
+        with open(log, "wb") as out:
+            proc = subprocess.Popen(
+                [exe, "--bind", bind, "--port", str(grpc_port), "--memory-limit", memory_limit,
+                 "--expect-data-soon"],
+                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                start_new_session=True,  # the viewer outlives the replay
+                env={**os.environ, "RERUN_APP_ONLY": "true"},
+            )
+        _wait_listening(proc, host, [grpc_port], 30.0, log)
+        rec.connect_grpc(url)
+        return RerunOutput(rec, "spawn", process=proc, grpc_url=url)
+    # serve: a gRPC server buffering the stream plus the web viewer, both on `bind`
+    grpc_port = _port_or_free(bind, grpc_port)
+    web_port = _port_or_free(bind, web_port)
+    log = log_dir / f"evstream-rerun-serve-{grpc_port}.log"
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(
+            [exe, "--serve-web", "--bind", bind, "--port", str(grpc_port), "--web-viewer-port", str(web_port),
+             "--server-memory-limit", memory_limit],
+            stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+            env={**os.environ, "RERUN_APP_ONLY": "true"},
+        )
+    _wait_listening(proc, host, [grpc_port, web_port], 30.0, log)
+    grpc_url = f"rerun+http://{host}:{grpc_port}/proxy"
+    shown = socket.gethostname() if host != bind else host
+    web_url = f"http://{shown}:{web_port}/?url={quote(f'rerun+http://{shown}:{grpc_port}/proxy', safe='')}"
+    rec.connect_grpc(grpc_url)
+    return RerunOutput(rec, "serve", process=proc, grpc_url=grpc_url, web_url=web_url)
