@@ -27,18 +27,6 @@ from .common import NEVER_US, ScoredClassifier, check, is_int
 
 
 @njit(cache=True, nogil=True)
-def _supports(ti, pi, self_pos, other_pos, cell_t, cell_pos, cell_p, tau_us, match):
-    """1 if a column (row) cell's event is within tau, of matching polarity where asked, and lies at
-    a row (column) `cell_pos` within one of `other_pos`, not at the event's own pixel."""
-    if ti - cell_t > tau_us or (match and cell_p != pi):
-        return 0
-    d = cell_pos - other_pos
-    if d < -1 or d > 1 or (d == 0 and self_pos):
-        return 0
-    return 1
-
-
-@njit(cache=True, nogil=True)
 def khodamoradi_kernel(t, x, y, p, col_t, col_y, col_p, row_t, row_x, row_p, tau_us, match, k,
                        out, score):
     """Class codes (0 SIGNAL, 1 BACKGROUND) and support counts; the column cells (`col_*`, length
@@ -50,10 +38,16 @@ def khodamoradi_kernel(t, x, y, p, col_t, col_y, col_p, row_t, row_x, row_p, tau
         yi = np.int64(y[i])
         s = 0
         for d in range(-1, 2):
-            c = xi + 1 + d  # column cell x+d (padded index)
-            s += _supports(ti, pi, d == 0, yi, col_t[c], np.int64(col_y[c]), col_p[c], tau_us, match)
-            r = yi + 1 + d  # row cell y+d
-            s += _supports(ti, pi, d == 0, xi, row_t[r], np.int64(row_x[r]), row_p[r], tau_us, match)
+            c = xi + 1 + d  # column cell x+d (padded index): its event must be within a row of y
+            if ti - col_t[c] <= tau_us and (not match or col_p[c] == pi):
+                dy = np.int64(col_y[c]) - yi
+                if -1 <= dy <= 1 and (d != 0 or dy != 0):
+                    s += 1
+            r = yi + 1 + d  # row cell y+d: its event must be within a column of x
+            if ti - row_t[r] <= tau_us and (not match or row_p[r] == pi):
+                dx = np.int64(row_x[r]) - xi
+                if -1 <= dx <= 1 and (d != 0 or dx != 0):
+                    s += 1
         out[i] = 0 if s >= k else 1
         score[i] = s
         col_t[xi + 1] = ti

@@ -25,50 +25,50 @@ from .common import NEVER_US, ScoredClassifier, check, is_int
 
 
 @njit(cache=True, nogil=True)
-def stcf_kernel(t, x, y, p, last, last_p, radius, k, tau_us, match, out):
-    """Class codes (0 SIGNAL, 1 BACKGROUND) into `out`; stops counting at k supporters.
-    `last`/`last_p` are (H+2r, W+2r) maps updated in place."""
+def stcf_kernel(t, x, y, p, last, last_p, width_padded, radius, offsets, k, tau_us, match, out):
+    """Class codes (0 SIGNAL, 1 BACKGROUND) into `out`; stops counting at k supporters. `last` and
+    `last_p` are the padded (H+2r)·(W+2r) maps, flattened, updated in place; `offsets` are the flat
+    offsets of the neighbours (the pixel itself excluded)."""
     for i in range(len(t)):
         ti = t[i]
-        r0 = y[i] + radius
-        c0 = x[i] + radius
+        centre = (np.int64(y[i]) + radius) * width_padded + np.int64(x[i]) + radius
         lim = ti - tau_us
         n = 0
-        for r in range(r0 - radius, r0 + radius + 1):
-            for c in range(c0 - radius, c0 + radius + 1):
-                if last[r, c] > lim and (r != r0 or c != c0) and (not match or last_p[r, c] == p[i]):
-                    n += 1
-            if n >= k:
-                break
+        for o in offsets:
+            q = centre + o
+            if last[q] > lim and (not match or last_p[q] == p[i]):
+                n += 1
+                if n >= k:
+                    break
         out[i] = 0 if n >= k else 1
-        last[r0, c0] = ti
-        last_p[r0, c0] = p[i]
+        last[centre] = ti
+        last_p[centre] = p[i]
 
 
 @njit(cache=True, nogil=True)
-def stcf_scored_kernel(t, x, y, p, last, last_p, radius, k, tau_us, match, out, score, newest):
-    """As `stcf_kernel`, also writing the score; `newest` is scratch of length >= k (k newest
+def stcf_scored_kernel(t, x, y, p, last, last_p, width_padded, radius, offsets, k, tau_us, match, out, score,
+                       newest):
+    """As `stcf_kernel`, also writing the score; `newest` is scratch of length k (the k newest
     neighbour timestamps, descending)."""
     for i in range(len(t)):
         ti = t[i]
-        r0 = y[i] + radius
-        c0 = x[i] + radius
+        centre = (np.int64(y[i]) + radius) * width_padded + np.int64(x[i]) + radius
         for j in range(k):
             newest[j] = NEVER_US
-        for r in range(r0 - radius, r0 + radius + 1):
-            for c in range(c0 - radius, c0 + radius + 1):
-                v = last[r, c]
-                if v > newest[k - 1] and (r != r0 or c != c0) and (not match or last_p[r, c] == p[i]):
-                    j = k - 1  # insert v into the descending top-k list
-                    while j > 0 and newest[j - 1] < v:
-                        newest[j] = newest[j - 1]
-                        j -= 1
-                    newest[j] = v
+        for o in offsets:
+            q = centre + o
+            v = last[q]
+            if v > newest[k - 1] and (not match or last_p[q] == p[i]):
+                j = k - 1  # insert v into the descending top-k list
+                while j > 0 and newest[j - 1] < v:
+                    newest[j] = newest[j - 1]
+                    j -= 1
+                newest[j] = v
         kth = newest[k - 1]
         out[i] = 0 if ti - kth < tau_us else 1
         score[i] = -np.inf if kth == NEVER_US else -float(ti - kth)
-        last[r0, c0] = ti
-        last_p[r0, c0] = p[i]
+        last[centre] = ti
+        last_p[centre] = p[i]
 
 
 @register("stage", "stcf")
@@ -97,20 +97,25 @@ class SpatioTemporalCorrelationFilter(ScoredClassifier):
 
     def _allocate(self, g):
         r = self.radius_px
-        self._last = np.full((g.height + 2 * r, g.width + 2 * r), NEVER_US, np.int64)
-        self._last_p = np.zeros_like(self._last, dtype=np.uint8)
+        self._width_padded = g.width + 2 * r
+        self._last = np.full((g.height + 2 * r) * self._width_padded, NEVER_US, np.int64)
+        self._last_p = np.zeros(len(self._last), np.uint8)
+        dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+        keep = (dy != 0) | (dx != 0)
+        self._offsets = (dy[keep] * self._width_padded + dx[keep]).astype(np.int64)
 
     def classify(self, chunk: EventChunk) -> np.ndarray:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
-        stcf_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._last, self._last_p, self.radius_px, self.k,
-                    self.tau_us, self.polarity_match, out)
+        stcf_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._last, self._last_p, self._width_padded,
+                    self.radius_px, self._offsets, self.k, self.tau_us, self.polarity_match, out)
         return out
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
         score = np.empty(len(chunk), np.float64)
-        stcf_scored_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._last, self._last_p, self.radius_px,
-                           self.k, self.tau_us, self.polarity_match, out, score, self._newest)
+        stcf_scored_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._last, self._last_p, self._width_padded,
+                           self.radius_px, self._offsets, self.k, self.tau_us, self.polarity_match, out, score,
+                           self._newest)
         return out, score

@@ -33,11 +33,12 @@ from .common import NEVER_US, ScoredClassifier, check, is_int
 
 
 @njit(cache=True, nogil=True)
-def ynoise_kernel(t, x, y, p, ring_t, ring_p, head, radius, window_us, match, threshold, hot_window_us,
+def ynoise_kernel(t, x, y, p, ring_t, ring_p, head, newest, radius, window_us, match, threshold, hot_window_us,
                   hot_min_events, hot_ratio, out, score):
     """Class codes and scores; `ring_t`/`ring_p` (H+2r, W+2r, K) hold each pixel's last K events,
-    `head` (H+2r, W+2r) the next slot; all updated in place."""
+    `head` (H+2r, W+2r) the next slot, `newest` each pixel's latest timestamp; all updated in place."""
     cap = ring_t.shape[2]
+    horizon = max(window_us, hot_window_us)
     for i in range(len(t)):
         ti = t[i]
         pi = p[i]
@@ -48,6 +49,8 @@ def ynoise_kernel(t, x, y, p, ring_t, ring_p, head, radius, window_us, match, th
         around = 0
         for r in range(r0 - radius, r0 + radius + 1):
             for c in range(c0 - radius, c0 + radius + 1):
+                if ti - newest[r, c] >= horizon:
+                    continue  # an idle pixel: skip its ring
                 centre = r == r0 and c == c0
                 for j in range(cap):
                     age = ti - ring_t[r, c, j]
@@ -71,6 +74,7 @@ def ynoise_kernel(t, x, y, p, ring_t, ring_p, head, radius, window_us, match, th
         ring_t[r0, c0, h] = ti
         ring_p[r0, c0, h] = pi
         head[r0, c0] = (h + 1) % cap
+        newest[r0, c0] = ti
 
 
 @register("stage", "ynoise")
@@ -104,7 +108,7 @@ class YNoiseFilter(ScoredClassifier):
         check(isinstance(self.hot_ratio, (int, float)) and 0 < self.hot_ratio <= 1, "ynoise",
               f"hot_ratio must be in (0, 1], got {self.hot_ratio!r}")
         self.polarity_match, self.hot_ratio = bool(self.polarity_match), float(self.hot_ratio)
-        self._ring_t = self._ring_p = self._head = None
+        self._ring_t = self._ring_p = self._head = self._newest = None
 
     def _allocate(self, g):
         r = self.radius_px
@@ -112,12 +116,13 @@ class YNoiseFilter(ScoredClassifier):
         self._ring_t = np.full((*shape, self.count_cap), NEVER_US, np.int64)
         self._ring_p = np.zeros((*shape, self.count_cap), np.uint8)
         self._head = np.zeros(shape, np.int64)
+        self._newest = np.full(shape, NEVER_US, np.int64)
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
         score = np.empty(len(chunk), np.float64)
-        ynoise_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._ring_t, self._ring_p, self._head,
+        ynoise_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._ring_t, self._ring_p, self._head, self._newest,
                       self.radius_px, self.window_us, self.polarity_match, self.threshold,
                       self.hot_window_us, self.hot_min_events, self.hot_ratio, out, score)
         return out, score
