@@ -170,7 +170,7 @@ CASES = {
                                       "hot_window_us": st.integers(1, 5000), "hot_min_events": st.integers(1, 3),
                                       "hot_ratio": st.floats(0.1, 1.0), "count_cap": st.integers(3, 5)}),
                YNoiseFilter, lambda s, kw: ref_ynoise(s, YNoiseFilter(**kw))),
-    "dwf": (st.fixed_dictionaries({"window_events": st.integers(1, 12), "radius_px": st.integers(0, 6),
+    "dwf": (st.fixed_dictionaries({"window_events": st.integers(2, 12), "radius_px": st.integers(0, 6),
                                    "k": st.integers(1, 3)}),
             DoubleWindowFilter, lambda s, kw: ref_dwf(s, kw["window_events"], kw["radius_px"], kw["k"])),
     "refractory": (st.fixed_dictionaries({"refractory_us": st.integers(1, 2000)}),
