@@ -16,6 +16,8 @@ import numpy as np
 
 from . import noise, synth
 from .events import EventError, Geometry, NoiseClass
+from .framing import options as framer_options
+from .framing.render import STYLES
 from .pipeline import Pipeline, RunStats, build, kinds, paced
 
 
@@ -164,6 +166,7 @@ def cmd_replay(args) -> int:
         raise UsageError(f"--point-budget {args.point_budget}: must be >= 0 (0 = every event)")
     source = _open(args.source)
     pipeline = _pipeline(args, source)
+    _attach_framer(pipeline, args)
     save, spawn = args.save, args.spawn
     if not outputs:  # a desktop viewer where there is a display, else a file
         if has_display():
@@ -189,7 +192,8 @@ def cmd_replay(args) -> int:
         progress.done()
         out.finish()
         summary = {**stats.as_dict(), "points_logged": sink.points_logged, "points_dropped": sink.points_dropped,
-                   **lag.as_dict(), "output": out.mode, "rrd": save, "web_url": out.web_url}
+                   **lag.as_dict(), "output": out.mode, "rrd": save, "grpc_url": out.grpc_url,
+                   "web_url": out.web_url}
         if args.json:
             print(json.dumps(summary), flush=True)
         else:
@@ -213,6 +217,72 @@ def cmd_replay(args) -> int:
                 pass
     finally:
         out.stop()
+    return 0
+
+
+def _attach_framer(pipeline: Pipeline, args) -> None:
+    """Set the pipeline's framer from `--framer` and its parameter flags (a TOML framer stays otherwise)."""
+    try:
+        framers = framer_options.framers_from_args(args)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if len(framers) > 1:
+        raise UsageError(f"--framer {args.framer}: this command takes one framer")
+    if framers:
+        pipeline.framer = framers[0]
+
+
+def cmd_frames(args) -> int:
+    """Frame a recording with one or more framers; print the paper's frame statistics, write PNGs."""
+    from .framing.render import PngWriter
+    from .framing.stats import FrameStats
+
+    try:
+        kinds_ = framer_options.framer_kinds(args)
+        framer_options.framers_from_args(args)  # validate every parameter before reading anything
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if not kinds_:
+        raise UsageError("--framer none: name a framer (fw, fn, oa, adaptive)")
+    rows = []
+    for kind in kinds_:
+        source = _open(args.source)
+        pipeline = _pipeline(args, source)
+        pipeline.framer = build("framer", framer_options.framer_spec(kind, args))
+        fstats = FrameStats()  # fed per chunk: frames the end of the stream cut short are left out
+        sinks = []
+        writer = None
+        if args.out:
+            out_dir = Path(args.out) / kind if len(kinds_) > 1 else Path(args.out)
+            writer = PngWriter(out_dir, style=args.style)
+            sinks.append(writer)
+        progress = Progress(total=None)
+
+        def on_batch(batch, fstats=fstats, progress=progress):
+            fstats.add_frames(batch.frames)
+            progress(batch)
+
+        stats = pipeline.run(source, sinks, on_batch=on_batch)
+        progress.done()
+        fstats.duration_us = stats.duration_us
+        rows.append({"framer": pipeline.describe()["framer"], **fstats.as_dict(),
+                     "frames_at_end": stats.frames - fstats.frames,
+                     "events_in": stats.events_in, "events_signal": int(stats.per_class[NoiseClass.SIGNAL]),
+                     "denoise": [st["kind"] for st in pipeline.describe()["stages"]],
+                     "png_dir": str(writer.out_dir) if writer else None,
+                     "png_written": writer.written if writer else 0})
+    if args.json:
+        print(json.dumps({"source": args.source, "results": rows}))
+        return 0
+    print(f"{args.source}: {rows[0]['events_in']:,} events over {rows[0]['duration_us'] / 1e6:.3f} s, "
+          f"denoise: {', '.join(rows[0]['denoise']) or 'none'}")
+    print("frames closed by the end of the stream (cut short) are written but not counted")
+    print(f"{'framer':<10} {'frames':>7} {'rate (fps)':>11} {'mean events':>12} {'variance':>16} {'empty':>6}")
+    for r in rows:
+        print(f"{r['framer']['kind']:<10} {r['frames']:>7,} {r['frame_rate_hz']:>11.2f} {r['mean_events']:>12,.2f} "
+              f"{r['variance_events']:>16,.2f} {r['empty_frames']:>6,}")
+        if r["png_dir"]:
+            print(f"  wrote {r['png_written']:,} PNG frames to {r['png_dir']}")
     return 0
 
 
@@ -241,6 +311,66 @@ def cmd_synth(args) -> int:
     print(f"wrote {args.out}: {len(events):,} events ({counts[0]:,} signal, {counts[1]:,} background, "
           f"{counts[2]:,} hot pixel)")
     return 0
+
+
+def cmd_eval(args) -> int:
+    from . import evaluation
+
+    paths = list(args.recordings) or sorted(str(p) for p in Path("recordings").glob("*.npz"))
+    if args.real:
+        paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")
+    recordings = {}
+    seen = set()  # (events, first t, last t): a converted twin of a file already read is skipped
+    for path in paths:
+        try:
+            events = _read_all(path)
+        except (EventError, OSError, ValueError) as e:
+            print(f"evstream eval: skipping {path}: {e}", file=sys.stderr)
+            continue
+        duration_s = events.duration_us * 1e-6
+        if duration_s < args.min_duration_s:
+            print(f"evstream eval: skipping {path}: {duration_s:.3f} s is shorter than --min-duration-s",
+                  file=sys.stderr)
+            continue
+        signature = (len(events), int(events.t[0]), int(events.t[-1]))
+        if signature in seen:
+            print(f"evstream eval: skipping {path}: same events as a recording already read", file=sys.stderr)
+            continue
+        seen.add(signature)
+        recordings[Path(path).stem] = events
+    if not recordings:
+        raise UsageError("no recording to evaluate")
+    methods = args.methods.split(",") if args.methods else list(evaluation.METHODS)
+    conditions = [evaluation.Condition(noise_ratio=r) for r in args.ratios] + [
+        evaluation.Condition(ba_rate_hz=r) for r in args.rates_hz]
+    curves: dict = {}
+    say = (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr)) if sys.stderr.isatty() else None
+    rows = evaluation.run(recordings, conditions, range(args.seeds), methods, tune=args.tune,
+                          progress=say, curves=curves)
+    if say:
+        print(file=sys.stderr)
+    print(evaluation.report(rows, tune=args.tune))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(evaluation.as_json_rows(rows), indent=1))
+        print(f"wrote {args.json} ({len(rows)} rows)")
+    if args.roc:
+        try:
+            names = [c.name for c in conditions]
+            condition = args.roc_condition or ("100%" if "100%" in names else names[0])
+            evaluation.plot_roc(curves, condition, args.roc)
+            print(f"wrote {args.roc}")
+        except ImportError:
+            print("evstream eval: matplotlib is not installed; no ROC plot (pip install matplotlib)",
+                  file=sys.stderr)
+    return 0
+
+
+def _read_all(path: str):
+    from .events import concat
+
+    source = _open(path)
+    return concat(list(source), source.geometry)
 
 
 # -- argument parsing -------------------------------------------------------------------------------
@@ -276,7 +406,18 @@ def parser() -> argparse.ArgumentParser:
                    help="most 3D points per second of event time (0 = every event); frames and stats use all")
     p.add_argument("--slab-ms", type=float, default=100.0, help="depth of the 3D view's time slab")
     p.add_argument("--json", action="store_true", help="print run statistics as JSON")
+    framer_options.add_framer_flags(p)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("frames", help="frame a recording; print frame rate and events per frame, write PNGs")
+    p.add_argument("source")
+    _add_pipeline_flags(p)
+    framer_options.add_framer_flags(p, default="adaptive", several=True)
+    p.add_argument("--out", metavar="DIR", help="write every frame as a PNG into DIR (DIR/<framer> for several)")
+    p.add_argument("--style", default="paper", choices=STYLES,
+                   help="PNG rendering: paper (gray, ON white, OFF black), signed, or a colour map")
+    p.add_argument("--json", action="store_true", help="print the statistics as JSON")
+    p.set_defaults(func=cmd_frames)
 
     p = sub.add_parser("synth", help="simulate a scene with ground-truth labels")
     p.add_argument("scene", choices=sorted(synth.SCENES))
@@ -290,6 +431,22 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--hot-pixels", type=int, default=0, help="hot pixel count (with --ba-rate-hz)")
     p.add_argument("--hot-share", type=float, default=0.1, help="share of noise from hot pixels (ratio)")
     p.set_defaults(func=cmd_synth)
+
+    p = sub.add_parser("eval", help="inject labelled noise, run every denoiser, print the paper's tables")
+    p.add_argument("recordings", nargs="*", help="recordings (default: recordings/*.npz)")
+    p.add_argument("--real", metavar="DIR", help="also every readable recording in DIR")
+    p.add_argument("--methods", help="comma-separated (default: all)")
+    p.add_argument("--ratios", type=float, nargs="*", default=[0.1, 0.2, 0.5, 1.0, 1.5, 2.0],
+                   help="noise ratios (0.5 = 50 %%)")
+    p.add_argument("--rates-hz", type=float, nargs="*", default=[1.0, 3.0, 5.0],
+                   help="background activity rates, Hz/pixel")
+    p.add_argument("--seeds", type=int, default=2, help="noise seeds per condition")
+    p.add_argument("--tune", action="store_true", help="tune each threshold on the first half, report the second")
+    p.add_argument("--min-duration-s", type=float, default=0.25, help="skip shorter recordings")
+    p.add_argument("--json", metavar="FILE", help="write every result row as JSON")
+    p.add_argument("--roc", metavar="FILE.png", help="plot ROC curves")
+    p.add_argument("--roc-condition", help="noise condition of the ROC plot, e.g. 100%% or 3Hz (default 100%%)")
+    p.set_defaults(func=cmd_eval)
     return ap
 
 
