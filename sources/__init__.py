@@ -11,15 +11,19 @@ import os
 
 from evstream.events import EventError
 
-from . import native
+from . import aedat2, aedat4, dat, hdf5, matlab, native, nmnist, numpy_files, prophesee_raw, text
+from ._base import EventWarning
 
 # Readers, most specific magic first; each module has probe(head, path) and open(path, **options).
-FORMATS = [native]
+# N-MNIST binaries have no magic at all: they come last and need their extension.
+FORMATS = [native, numpy_files, hdf5, aedat4, aedat2, matlab, dat, prophesee_raw, text, nmnist]
 
 
 def open_source(uri: str | os.PathLike, **options):
     """Open a recording for replay; raises EventError naming the file when nothing can read it."""
     path = os.fspath(uri)
+    if path.startswith("file://"):
+        path = path[len("file://"):]
     if not os.path.exists(path):
         raise EventError(f"{path}: no such file")
     if os.path.isdir(path):
@@ -35,4 +39,4 @@ def open_source(uri: str | os.PathLike, **options):
     raise EventError(f"{path}: unrecognised format (first bytes {head[:8]!r}); readable formats: {known}")
 
 
-__all__ = ["FORMATS", "open_source"]
+__all__ = ["FORMATS", "EventWarning", "open_source"]

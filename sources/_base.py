@@ -1,0 +1,387 @@
+"""What every file reader shares: options, re-chunking of decoded blocks, validation, watermarks,
+warnings, byte offsets in errors, and a few small numba kernels (clock unwrapping).
+
+A reader subclasses `FileSource` and implements `_blocks()`, a generator of `Block`s (decoded events
+in file order with the byte range they came from). `FileSource.__iter__` turns those into validated
+`EventChunk`s of `chunk_events` events (or `chunk_us` of event time) at constant memory.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from evstream.events import EventChunk, EventError, Geometry, TimestampPolicy, Validator
+
+DEFAULT_CHUNK_EVENTS = 50_000
+DEFAULT_BLOCK_BYTES = 4 << 20
+MAX_CHUNK_EVENTS = 4_000_000  # a chunk_us chunk is cut here too, so memory stays bounded
+
+# Sensors whose size a reader may assume when a file does not say (smallest that fits wins).
+KNOWN_SENSORS = [
+    Geometry(34, 34),  # N-MNIST (ATIS crop)
+    Geometry(128, 128),  # DVS128
+    Geometry(240, 180),  # DAVIS240
+    Geometry(304, 240),  # ATIS
+    Geometry(320, 240),  # DVXplorer Lite
+    Geometry(346, 260),  # DAVIS346
+    Geometry(640, 480),  # Prophesee Gen3, DVXplorer
+    Geometry(1280, 720),  # Prophesee Gen4 / IMX636
+]
+
+
+class EventWarning(UserWarning):
+    """A recoverable problem in a recording (a truncated tail, events dropped by the timestamp policy)."""
+
+
+@dataclass
+class Block:
+    """Decoded events in file order and the byte range [byte_start, byte_end) they came from.
+
+    `record_bytes` > 0 means fixed-size records starting at `byte_start` (exact offsets per event).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    p: np.ndarray
+    byte_start: int = 0
+    byte_end: int = 0
+    record_bytes: int = 0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def as_geometry(g) -> Geometry | None:
+    """A Geometry from a Geometry, a (width, height) pair or 'WxH'; None stays None."""
+    if g is None or isinstance(g, Geometry):
+        return g
+    if isinstance(g, str):
+        try:
+            w, h = (int(v) for v in g.lower().split("x"))
+        except ValueError:
+            raise ValueError(f"geometry {g!r}: expected WIDTHxHEIGHT, e.g. 640x480") from None
+        return Geometry(w, h)
+    w, h = g
+    return Geometry(int(w), int(h))
+
+
+def fit_geometry(max_x: int, max_y: int, sensors: list[Geometry] | None = None) -> Geometry:
+    """The smallest known sensor that holds (max_x, max_y), else exactly the bounding box."""
+    for g in KNOWN_SENSORS if sensors is None else sensors:
+        if max_x < g.width and max_y < g.height:
+            return g
+    return Geometry(max(1, int(max_x) + 1), max(1, int(max_y) + 1))
+
+
+@numba.njit(cache=True, nogil=True)
+def unwrap_kernel(t_raw, bits, state, out):
+    """Unwrap a counter of `bits` bits that wraps: a drop of more than half the range is a wrap.
+
+    `state` = [offset, last raw value (-1 at start), wraps]; writes int64 µs into `out`.
+    """
+    half = np.int64(1) << (bits - 1)
+    period = np.int64(1) << bits
+    offset = state[0]
+    last = state[1]
+    wraps = state[2]
+    for i in range(len(t_raw)):
+        v = np.int64(t_raw[i])
+        if last >= 0 and last - v > half:
+            offset += period
+            wraps += 1
+        last = v
+        out[i] = v + offset
+    state[0] = offset
+    state[1] = last
+    state[2] = wraps
+
+
+class Unwrapper:
+    """Streaming unwrap of a `bits`-bit timestamp counter (e.g. DAT and AEDAT2's 32-bit µs clocks)."""
+
+    def __init__(self, bits: int):
+        self.bits = bits
+        self.state = np.array([0, -1, 0], np.int64)
+
+    @property
+    def wraps(self) -> int:
+        return int(self.state[2])
+
+    def __call__(self, t_raw: np.ndarray) -> np.ndarray:
+        out = np.empty(len(t_raw), np.int64)
+        unwrap_kernel(t_raw, self.bits, self.state, out)
+        return out
+
+
+class FileSource:
+    """Base of the file readers. Subclasses set `format`, `geometry` (before iterating) and implement
+    `_blocks()`; they may add entries to `self.details` (shown by `info()`) and counters to
+    `self.counters`.
+
+    Options common to every reader: `chunk_events` (events per chunk), `chunk_us` (event time per
+    chunk, instead), `geometry` (override the file's), `timestamps` (policy for timestamps that go
+    back: 'error', 'sort' or 'drop'; the default is the reader's `default_timestamps`).
+    """
+
+    format = "?"
+    default_timestamps = "error"
+    has_labels = False
+
+    def __init__(self, path, chunk_events: int = DEFAULT_CHUNK_EVENTS, chunk_us: int | None = None,
+                 geometry=None, timestamps: str | None = None, block_bytes: int = DEFAULT_BLOCK_BYTES):
+        self.path = os.fspath(path)
+        self.chunk_events = int(chunk_events)
+        self.chunk_us = None if chunk_us is None else int(chunk_us)
+        if self.chunk_events <= 0 or (self.chunk_us is not None and self.chunk_us <= 0):
+            raise ValueError("chunk_events and chunk_us must be positive")
+        self.block_bytes = max(1024, int(block_bytes))
+        self.timestamps = TimestampPolicy(timestamps or self.default_timestamps).value
+        self.geometry_override = as_geometry(geometry)
+        self.geometry: Geometry | None = self.geometry_override
+        self.geometry_source = "option" if self.geometry_override else None
+        self.file_size = os.path.getsize(self.path)
+        self.details: dict = {}
+        self.counters: dict = {}
+        self.dropped = 0
+        self.reordered = 0
+
+    # -- to implement ----------------------------------------------------------------------------
+    def _blocks(self) -> Iterator[Block]:
+        raise NotImplementedError
+
+    # -- shared ----------------------------------------------------------------------------------
+    def set_geometry(self, g: Geometry | None, source: str) -> None:
+        """Use `g` (from the header, or assumed) unless the user gave one."""
+        if self.geometry_override is None and g is not None:
+            self.geometry = g
+            self.geometry_source = source
+
+    def info(self) -> dict:
+        return {
+            "format": self.format, "path": self.path, "bytes": self.file_size,
+            "width": self.geometry.width, "height": self.geometry.height,
+            "geometry_from": self.geometry_source, "timestamps": self.timestamps,
+            "dropped": self.dropped, "reordered": self.reordered, "counters": dict(self.counters),
+            **self.details,
+        }
+
+    def error(self, reason: str, offset: int | None = None) -> EventError:
+        at = f" at byte {offset}" if offset is not None else ""
+        return EventError(f"{self.path}{at}: {reason}")
+
+    def warn(self, message: str) -> None:
+        warnings.warn(f"{self.path}: {message}", EventWarning, stacklevel=3)
+
+    def __iter__(self) -> Iterator[EventChunk]:
+        if self.geometry is None:
+            raise self.error("no sensor size known; pass geometry=(width, height)")
+        check = Validator(self.geometry, self.path, self.timestamps)
+        strict = check.policy is TimestampPolicy.ERROR
+        pending: list[Block] = []
+        n_pending = 0
+        offset = 0  # events emitted so far
+        bin_start = None  # chunk_us: start of the current time bin
+        for block in self._blocks():
+            if not len(block):
+                continue
+            self._check_coords(block, offset + n_pending)
+            pending.append(block)
+            n_pending += len(block)
+            while True:
+                buf = _merge(pending)
+                pending = [buf]
+                if self.chunk_us is None:
+                    if n_pending <= self.chunk_events:
+                        break
+                    cut = self.chunk_events
+                else:
+                    if bin_start is None:
+                        bin_start = int(buf.t[0])
+                    cut = _time_cut(buf.t, bin_start + self.chunk_us, MAX_CHUNK_EVENTS)
+                    if cut < 0:
+                        break
+                    bin_start = _next_bin(bin_start, int(buf.t[cut]), self.chunk_us)
+                head = _slice(buf, 0, cut)
+                pending = [_slice(buf, cut, n_pending)]
+                n_pending -= cut
+                chunk = self._emit(check, head, int(buf.t[cut]) if strict else None)
+                offset += cut
+                yield chunk
+        # the rest, without a following event to bound it
+        if n_pending:
+            buf = _merge(pending)
+            step = self.chunk_events if self.chunk_us is None else MAX_CHUNK_EVENTS
+            for a in range(0, n_pending, step):
+                b = min(a + step, n_pending)
+                yield self._emit(check, _slice(buf, a, b), int(buf.t[b]) if strict and b < n_pending else None)
+        self.dropped, self.reordered = check.dropped, check.reordered
+        if check.dropped:
+            self.warn(f"{check.dropped} events dropped: their timestamps go back "
+                      f"(timestamp policy {self.timestamps!r})")
+
+    def _emit(self, check: Validator, b: Block, next_t: int | None) -> EventChunk:
+        try:
+            chunk = check(EventChunk.from_arrays(b.t, b.x, b.y, b.p, self.geometry))
+        except EventError as e:
+            raise EventError(f"{e} [in bytes {b.byte_start}..{b.byte_end}]") from None
+        if next_t is not None and len(chunk) and next_t >= chunk.t[-1]:
+            chunk = chunk.replace(t_end=next_t)
+        return chunk
+
+    def _check_coords(self, b: Block, first_event: int) -> None:
+        g = self.geometry
+        bad = (b.x >= g.width) | (b.y >= g.height)
+        if bad.any():
+            i = int(np.argmax(bad))
+            if b.record_bytes:
+                where = f"at byte {b.byte_start + i * b.record_bytes}"
+            else:
+                where = f"in bytes {b.byte_start}..{b.byte_end}"
+            hint = "" if self.geometry_override else " (pass geometry=(width, height) if the file's is wrong)"
+            raise EventError(
+                f"{self.path} {where}: event {first_event + i}: ({b.x[i]}, {b.y[i]}) outside the "
+                f"{g} sensor (size from {self.geometry_source}){hint}"
+            )
+
+
+def _merge(blocks: list[Block]) -> Block:
+    if len(blocks) == 1:
+        return blocks[0]
+    return Block(*(np.concatenate([getattr(b, k) for b in blocks]) for k in "txyp"),
+                 byte_start=blocks[0].byte_start, byte_end=blocks[-1].byte_end)
+
+
+def _slice(b: Block, i: int, j: int) -> Block:
+    if b.record_bytes:
+        return Block(b.t[i:j], b.x[i:j], b.y[i:j], b.p[i:j], b.byte_start + i * b.record_bytes,
+                     b.byte_start + j * b.record_bytes, b.record_bytes)
+    return Block(b.t[i:j], b.x[i:j], b.y[i:j], b.p[i:j], b.byte_start, b.byte_end)
+
+
+@numba.njit(cache=True, nogil=True)
+def _time_cut(t, boundary, max_events):
+    """First index with t >= boundary (the chunk ends before it), capped at max_events; -1 if none."""
+    n = min(len(t), max_events + 1)
+    for i in range(1, n):
+        if t[i] >= boundary:
+            return i
+    if len(t) > max_events:
+        return max_events
+    return -1
+
+
+def _next_bin(bin_start: int, t_next: int, chunk_us: int) -> int:
+    """The start of the time bin holding t_next (bins are anchored at the first event)."""
+    if t_next < bin_start + chunk_us:
+        return bin_start if t_next >= bin_start else t_next
+    return bin_start + (t_next - bin_start) // chunk_us * chunk_us
+
+
+def read_header_lines(f, prefix: bytes, max_bytes: int = 1 << 20,
+                      end_line: str | None = None) -> tuple[list[str], int]:
+    """Read the leading lines that start with `prefix` (e.g. b'%'), up to and including `end_line`
+    if given; returns (lines, body offset)."""
+    lines = []
+    pos = 0
+    f.seek(0)
+    while pos < max_bytes:
+        first = f.read(len(prefix))
+        if first != prefix:
+            break
+        rest = f.readline(max_bytes)
+        line = first + rest
+        if not line.endswith(b"\n"):
+            # a header line running into the end of the file: the header is all there is
+            pos += len(line)
+            lines.append(line.decode("latin-1").rstrip("\r\n"))
+            break
+        pos += len(line)
+        lines.append(line.decode("latin-1").rstrip("\r\n"))
+        if end_line is not None and lines[-1].strip() == end_line:
+            break
+    f.seek(pos)
+    return lines, pos
+
+
+def iter_records(source: FileSource, offset: int, record_bytes: int) -> Iterator[tuple[np.ndarray, int]]:
+    """Whole fixed-size records of `source.path` from byte `offset`, as (uint8 array, byte start)
+    blocks of about `source.block_bytes`; warns about a partial record at the end."""
+    per_block = max(1, source.block_bytes // record_bytes) * record_bytes
+    pos = offset
+    with open(source.path, "rb") as f:
+        f.seek(offset)
+        while True:
+            data = f.read(per_block)
+            whole = len(data) - len(data) % record_bytes
+            if whole:
+                yield np.frombuffer(data, np.uint8, whole), pos
+            if whole < len(data):
+                source.warn(f"truncated: {len(data) - whole} byte(s) at byte {pos + whole} are a partial "
+                            f"{record_bytes}-byte event (ignored)")
+            pos += len(data)
+            if len(data) < per_block:
+                break
+
+
+TIME_UNITS_US = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
+FIELD_ALIASES = {
+    "t": ("t", "ts", "timestamp", "timestamps", "time", "times", "t_us"),
+    "x": ("x", "xs", "x_pos"),
+    "y": ("y", "ys", "y_pos"),
+    "p": ("p", "ps", "pol", "polarity", "polarities", "on"),
+}
+
+
+def find_fields(names) -> dict | None:
+    """Map t/x/y/p to the given field names (case-insensitive aliases); None if one is missing."""
+    lower = {str(n).lower(): n for n in names}
+    out = {}
+    for key, aliases in FIELD_ALIASES.items():
+        hit = next((lower[a] for a in aliases if a in lower), None)
+        if hit is None:
+            return None
+        out[key] = hit
+    return out
+
+
+def guess_time_unit(t: np.ndarray) -> str:
+    """Floating timestamps are seconds, integers µs (the conventions of the formats we read)."""
+    return "s" if np.issubdtype(t.dtype, np.floating) else "us"
+
+
+def to_events(source: FileSource, t, x, y, p, time_unit: str, byte_start: int = 0, byte_end: int = 0,
+              record_bytes: int = 0) -> Block:
+    """Normalise columns from any numeric dtype: t to int64 µs, p to 1 = ON (any value > 0, True, +1)."""
+    if time_unit not in TIME_UNITS_US:
+        raise ValueError(f"time_unit {time_unit!r}: choose from {', '.join(TIME_UNITS_US)}")
+    t = np.asarray(t)
+    if np.issubdtype(t.dtype, np.floating) or time_unit != "us":
+        tf = t.astype(np.float64) * TIME_UNITS_US[time_unit]
+        if not np.isfinite(tf).all():
+            i = int(np.argmax(~np.isfinite(tf)))
+            raise source.error(f"event {i} of a block has timestamp {t[i]!r}", byte_start or None)
+        t64 = np.rint(tf).astype(np.int64)
+    else:
+        t64 = t.astype(np.int64, copy=False)
+    cols = []
+    for name, a in (("x", x), ("y", y)):
+        a = np.asarray(a)
+        if a.dtype != np.uint16:
+            if len(a) and (a.min() < 0 or a.max() > 65535 or (np.issubdtype(a.dtype, np.floating)
+                                                               and not np.all(a == np.floor(a)))):
+                bad = (a < 0) | (a > 65535) | (a != np.floor(a))
+                i = int(np.argmax(bad))
+                raise source.error(f"event {i} of a block has {name} = {a[i]!r}: not a pixel index",
+                                   byte_start or None)
+            a = a.astype(np.uint16)
+        cols.append(a)
+    p = np.asarray(p)
+    p8 = p.astype(np.uint8) if p.dtype == np.bool_ else (p > 0).astype(np.uint8)
+    return Block(t64, cols[0], cols[1], p8, byte_start, byte_end, record_bytes)

@@ -1,0 +1,150 @@
+"""HDF5 event files, read with h5py in slices (constant memory). Layouts found in the wild:
+
+- `/events/{t,x,y,p}` datasets (and aliases: ts/xs/ys/ps, timestamp/polarity, ...), struct of arrays;
+- the same datasets at the root;
+- `/events` (or `/CD/events`, Prophesee's) as one compound dataset with t/x/y/p fields;
+- `/events` as an N×4 array (`columns=`, default 'txyp').
+
+Sensor size from `width`/`height` (or `sensor_size`, `sensor_resolution`) attributes on the file, the
+group or the dataset, else fitted to the events (one pass). Integer timestamps are µs, floating ones
+seconds (a `t_unit` attribute or `time_unit=` overrides). Prophesee's own HDF5 files compress with the
+ECF filter: without that plugin installed, reading fails with a clear error.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from evstream.events import Geometry
+
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_time_unit, to_events
+
+NAME = "HDF5 (/events/{t,x,y,p} and variants)"
+FORMAT = "hdf5"
+MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+def probe(head: bytes, path: str) -> bool:
+    return head.startswith(MAGIC)
+
+
+def _h5py():
+    try:
+        import h5py
+    except ImportError:  # pragma: no cover - h5py is a dependency
+        raise ImportError("reading HDF5 needs h5py: pip install h5py") from None
+    return h5py
+
+
+class Hdf5Source(FileSource):
+    """Replays an HDF5 event file; timestamps must rise (policy 'error' by default)."""
+
+    format = FORMAT
+
+    def __init__(self, path, columns: str = "txyp", time_unit: str | None = None, **options):
+        super().__init__(path, **options)
+        h5py = _h5py()
+        try:
+            self._file = h5py.File(self.path, "r")
+        except OSError as e:
+            raise self.error(f"unreadable HDF5 file: {e}") from None
+        self._layout, self._where, attrs_from = self._find(self._file, columns)
+        t = self._col("t", 0, 1)
+        unit_attr = next((str(o.attrs[k]) for o in attrs_from for k in ("t_unit", "time_unit")
+                          if k in o.attrs), None)
+        self.time_unit = time_unit or (unit_attr.replace("µs", "us") if unit_attr else guess_time_unit(t))
+        for obj in attrs_from:
+            g = _attr_geometry(obj.attrs)
+            if g is not None:
+                self.set_geometry(g, f"attributes of {obj.name}")
+                break
+        if self.geometry is None:
+            mx = my = 0
+            for b in self._blocks():
+                if len(b):
+                    mx, my = max(mx, int(b.x.max())), max(my, int(b.y.max()))
+            self.set_geometry(fit_geometry(mx, my), "fitted to the events (no size attributes)")
+        self.details = {"layout": self._layout, "events": self.n_events, "time_unit": self.time_unit}
+
+    def _find(self, f, columns):
+        h5py = _h5py()
+        for name in ("events", "CD/events", "cd/events"):
+            obj = f.get(name)
+            if isinstance(obj, h5py.Group):
+                fields = find_fields([k for k, v in obj.items() if isinstance(v, h5py.Dataset)])
+                if fields:
+                    self._set({k: obj[v] for k, v in fields.items()})
+                    return f"/{name}/{{t,x,y,p}}", obj, [obj, f]
+            elif isinstance(obj, h5py.Dataset):
+                if obj.dtype.names:
+                    fields = find_fields(obj.dtype.names)
+                    if fields is None:
+                        raise self.error(f"dataset /{name} has fields {list(obj.dtype.names)}, not t/x/y/p")
+                    self._set({k: (obj, v) for k, v in fields.items()})
+                    return f"/{name} (compound)", obj, [obj, obj.parent, f]
+                if obj.ndim == 2 and 4 in obj.shape:
+                    if obj.shape[1] != 4:
+                        raise self.error(f"dataset /{name} is 4×N; only N×4 is read")
+                    self._set({k: (obj, i) for i, k in enumerate(columns)})
+                    return f"/{name} (N×4)", obj, [obj, f]
+        fields = find_fields([k for k, v in f.items() if isinstance(v, h5py.Dataset)])
+        if fields:
+            self._set({k: f[v] for k, v in fields.items()})
+            return "/{t,x,y,p}", f, [f]
+        raise self.error(f"no event datasets found (looked for /events/{{t,x,y,p}}, /events, /CD/events, "
+                         f"/{{t,x,y,p}}); the file has {list(f.keys())}")
+
+    def _set(self, cols: dict) -> None:
+        self._cols = cols
+        lengths = {k: (c[0].shape[0] if isinstance(c, tuple) else c.shape[0]) for k, c in cols.items()}
+        if len(set(lengths.values())) != 1:
+            raise self.error(f"event datasets differ in length: {lengths}")
+        self.n_events = lengths["t"]
+
+    def _col(self, key: str, a: int, b: int) -> np.ndarray:
+        c = self._cols[key]
+        try:
+            if isinstance(c, tuple):
+                ds, field = c
+                return ds[a:b, field] if isinstance(field, int) else ds.fields(field)[a:b]
+            return c[a:b]
+        except OSError as e:
+            hint = (" (Prophesee HDF5 needs its ECF filter plugin: pip install hdf5plugin, or convert with "
+                    "Metavision)") if "filter" in str(e).lower() or "can't" in str(e).lower() else ""
+            raise self.error(f"cannot read events {a}..{b}: {e}{hint}") from None
+
+    def _blocks(self) -> Iterator[Block]:
+        step = max(1, self.block_bytes // 16)
+        for a in range(0, self.n_events, step):
+            b = min(a + step, self.n_events)
+            yield to_events(self, *(self._col(k, a, b) for k in "txyp"), self.time_unit)
+
+
+def _attr_geometry(attrs) -> Geometry | None:
+    try:
+        if "width" in attrs and "height" in attrs:
+            return Geometry(int(attrs["width"]), int(attrs["height"]))
+        for key in ("sensor_size", "sensor_resolution", "resolution"):
+            if key in attrs:
+                s = np.asarray(attrs[key]).ravel()
+                return Geometry(int(s[0]), int(s[1]))
+    except (ValueError, IndexError, TypeError):
+        return None
+    return None
+
+
+def open(path, **options) -> Hdf5Source:  # noqa: A001 - the format-module interface
+    return Hdf5Source(path, **options)
+
+
+def save(path, events, compression: str | None = "gzip") -> None:
+    """Write a chunk as `/events/{t,x,y,p}` with width/height attributes."""
+    h5py = _h5py()
+    with h5py.File(path, "w") as f:
+        f.attrs["width"], f.attrs["height"] = events.geometry.width, events.geometry.height
+        f.attrs["t_unit"] = "us"
+        g = f.create_group("events")
+        for k in "txyp":
+            g.create_dataset(k, data=getattr(events, k), compression=compression)

@@ -1,0 +1,106 @@
+"""NumPy files that are not evstream's native `.npz`: a `.npy` structured array (fields t/x/y/p or
+their common aliases), a `.npy` N×4 array (`columns=`, default 'txyp'), or an `.npz` holding t, x, y,
+p arrays (a struct of arrays) or one structured array. `.npy` files are memory-mapped, so replay runs at
+constant memory; `.npz` members are loaded one at a time. Never unpickled (`allow_pickle=False`).
+
+Integer timestamps are µs, floating ones seconds (`time_unit=` overrides). Sensor size from
+`width`/`height` (or `sensor_size`) members, else fitted to the events (one pass).
+"""
+
+from __future__ import annotations
+
+import builtins
+import zipfile
+from collections.abc import Iterator
+
+import numpy as np
+
+from evstream.events import Geometry
+
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_time_unit, to_events
+
+NAME = "NumPy .npy / .npz (structured or struct of arrays)"
+FORMAT = "npy"
+
+
+def probe(head: bytes, path: str) -> bool:
+    if head.startswith(b"\x93NUMPY"):
+        return True
+    if head.startswith(b"PK\x03\x04"):
+        try:
+            with zipfile.ZipFile(path) as z:
+                return any(n.endswith(".npy") for n in z.namelist())
+        except zipfile.BadZipFile:
+            return False
+    return False
+
+
+class NumpySource(FileSource):
+    """Replays a .npy/.npz event file; timestamps must rise (policy 'error' by default)."""
+
+    def __init__(self, path, columns: str = "txyp", time_unit: str | None = None, **options):
+        super().__init__(path, **options)
+        self._npz = None
+        try:
+            with builtins.open(self.path, "rb") as f:
+                magic = f.read(6)
+            if magic == b"\x93NUMPY":
+                self.format = "npy"
+                self._cols = self._from_array(np.load(self.path, mmap_mode="r", allow_pickle=False), columns)
+            else:
+                self.format = "npz"
+                self._npz = np.load(self.path, allow_pickle=False)
+                self._cols = self._from_npz(self._npz, columns)
+        except (ValueError, OSError, zipfile.BadZipFile, EOFError) as e:
+            raise self.error(f"unreadable NumPy file: {e}") from None
+        n = len(self._cols["t"])
+        if any(len(a) != n for a in self._cols.values()):
+            raise self.error(f"arrays differ in length: { {k: len(a) for k, a in self._cols.items()} }")
+        self.n_events = n
+        self.time_unit = time_unit or guess_time_unit(self._cols["t"])
+        if self.geometry is None:
+            mx = my = 0
+            step = 1 << 22
+            for a in range(0, n, step):
+                mx = max(mx, int(np.max(self._cols["x"][a : a + step])))
+                my = max(my, int(np.max(self._cols["y"][a : a + step])))
+            self.set_geometry(fit_geometry(mx, my), "fitted to the events (the file has no size)")
+        self.details = {"events": n, "time_unit": self.time_unit}
+
+    def _from_array(self, a: np.ndarray, columns: str) -> dict:
+        if a.dtype.names:
+            f = find_fields(a.dtype.names)
+            if f is None:
+                raise self.error(f"structured array lacks t/x/y/p fields; has {list(a.dtype.names)}")
+            return {k: a[v] for k, v in f.items()}
+        if a.ndim == 2 and 4 in a.shape:
+            if sorted(columns) != sorted("txyp"):
+                raise ValueError(f"columns {columns!r}: a permutation of 'txyp'")
+            rows = a if a.shape[1] == 4 else a.T
+            return {k: rows[:, i] for i, k in enumerate(columns)}
+        raise self.error(f"array of shape {a.shape} and dtype {a.dtype} is not an event list "
+                         "(expected a structured array with t, x, y, p or an N×4 array)")
+
+    def _from_npz(self, z, columns: str) -> dict:
+        f = find_fields(z.files)
+        if f is not None:
+            if "width" in z.files and "height" in z.files:
+                self.set_geometry(Geometry(int(z["width"]), int(z["height"])), "file (width/height)")
+            elif "sensor_size" in z.files:
+                s = np.asarray(z["sensor_size"]).ravel()
+                self.set_geometry(Geometry(int(s[0]), int(s[1])), "file (sensor_size)")
+            return {k: z[v] for k, v in f.items()}
+        if len(z.files) == 1:
+            return self._from_array(z[z.files[0]], columns)
+        raise self.error(f"no t/x/y/p arrays among {z.files}")
+
+    def _blocks(self) -> Iterator[Block]:
+        c = self._cols
+        step = max(1, self.block_bytes // 16)
+        for a in range(0, self.n_events, step):
+            b = min(a + step, self.n_events)
+            yield to_events(self, c["t"][a:b], c["x"][a:b], c["y"][a:b], c["p"][a:b], self.time_unit)
+
+
+def open(path, **options) -> NumpySource:  # noqa: A001 - the format-module interface
+    return NumpySource(path, **options)

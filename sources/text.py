@@ -1,0 +1,151 @@
+"""Text files: one event per line, whitespace-separated numbers (the Event Camera Dataset's
+`t x y p`, t in seconds). Read in blocks at constant memory.
+
+Detected: `#`/`%` comment lines; an optional first line of two integers (`width height`); the time
+unit (a decimal point in the time column means seconds, else µs; `time_unit=` overrides); polarity
+as 0/1 or -1/+1. `columns=` gives another column order (e.g. 'xytp'). Without a size line, files up
+to 256 MB are scanned for the sensor size (smallest known sensor that holds the events).
+"""
+
+from __future__ import annotations
+
+import builtins
+import re
+import warnings
+from collections.abc import Iterator
+
+import numpy as np
+
+from evstream.events import Geometry
+
+from ._base import Block, FileSource, fit_geometry, to_events
+
+NAME = "text (t x y p per line)"
+FORMAT = "text"
+_NUM = rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_SCAN_LIMIT_BYTES = 256 << 20
+
+
+def _data_lines(head: bytes) -> list[bytes]:
+    lines = [ln.strip() for ln in head.split(b"\n")[:-1]]  # the last may be cut
+    return [ln for ln in lines if ln and not ln.startswith((b"#", b"%", b"//"))]
+
+
+def probe(head: bytes, path: str) -> bool:
+    if b"\x00" in head:
+        return False
+    lines = _data_lines(head)[:20]
+    if not lines:
+        return False
+    if re.fullmatch(rb"\d+\s+\d+", lines[0]):
+        lines = lines[1:]
+    return bool(lines) and all(
+        len(ln.split()) == 4 and all(re.fullmatch(_NUM, f) for f in ln.split()) for ln in lines)
+
+
+class TextSource(FileSource):
+    """Replays a text file; timestamps must rise (policy 'error' by default)."""
+
+    format = FORMAT
+
+    def __init__(self, path, columns: str = "txyp", time_unit: str | None = None, **options):
+        super().__init__(path, **options)
+        if sorted(columns) != sorted("txyp"):
+            raise ValueError(f"columns {columns!r}: a permutation of 'txyp'")
+        self.columns = columns
+        with builtins.open(self.path, "rb") as f:
+            head = f.read(1 << 16)
+        lines = _data_lines(head + (b"\n" if len(head) < 1 << 16 else b""))
+        if not lines:
+            raise self.error("no event lines in the first 64 KiB")
+        self.body_offset = 0
+        m = re.fullmatch(rb"(\d+)\s+(\d+)", lines[0])
+        if m:
+            self.set_geometry(Geometry(int(m[1]), int(m[2])), "header line (width height)")
+            self._skip_first_data_line = True
+            lines = lines[1:]
+        else:
+            self._skip_first_data_line = False
+        tcol = columns.index("t")
+        if time_unit is None:
+            time_unit = "s" if lines and b"." in lines[0].split()[tcol] else "us"
+        self.time_unit = time_unit
+        if self.geometry is None:
+            if self.file_size <= _SCAN_LIMIT_BYTES:
+                mx = my = 0
+                for b in self._blocks():
+                    if len(b):
+                        mx, my = max(mx, int(b.x.max())), max(my, int(b.y.max()))
+                self.set_geometry(fit_geometry(mx, my), "fitted to the events (no size line)")
+            else:
+                b = next(iter(self._blocks()))
+                self.set_geometry(fit_geometry(int(b.x.max()), int(b.y.max())),
+                                  "fitted to the first block (no size line; pass geometry=)")
+        self.details = {"time_unit": self.time_unit, "columns": self.columns}
+
+    def _parse(self, block: bytes, pos: int) -> Block:
+        n_lines = block.count(b"\n")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            vals = np.fromstring(block, dtype=np.float64, sep=" ") if block.strip() else np.zeros(0)
+        if len(vals) != 4 * n_lines or b"#" in block or b"%" in block:
+            return self._parse_slow(block, pos)
+        cols = vals.reshape(-1, 4).T
+        c = {k: cols[i] for i, k in enumerate(self.columns)}
+        return to_events(self, c["t"], c["x"], c["y"], c["p"], self.time_unit, pos, pos + len(block))
+
+    def _parse_slow(self, block: bytes, pos: int) -> Block:
+        """Line by line: skips comments, names the first bad line by byte offset."""
+        rows = []
+        off = pos
+        for line in block.split(b"\n"):
+            s = line.strip()
+            if s and not s.startswith((b"#", b"%", b"//")):
+                fields = s.split()
+                if len(fields) != 4 or not all(re.fullmatch(_NUM, f) for f in fields):
+                    raise self.error(f"line {line[:60]!r} is not 4 numbers", off)
+                rows.append([float(f) for f in fields])
+            off += len(line) + 1
+        cols = np.array(rows, np.float64).reshape(-1, 4).T
+        c = {k: cols[i] for i, k in enumerate(self.columns)}
+        return to_events(self, c["t"], c["x"], c["y"], c["p"], self.time_unit, pos, pos + len(block))
+
+    def _blocks(self) -> Iterator[Block]:
+        pos = 0
+        rest = b""
+        skip = self._skip_first_data_line
+        with builtins.open(self.path, "rb") as f:
+            while True:
+                data = f.read(self.block_bytes)
+                buf = rest + data
+                if not data:
+                    if buf.strip():
+                        yield self._parse(buf + b"\n", pos)
+                    break
+                cut = buf.rfind(b"\n") + 1
+                block, rest = buf[:cut], buf[cut:]
+                if skip:
+                    # drop comment lines and the `width height` line before the first event
+                    m = re.match(rb"(?:\s*(?:#|%|//)[^\n]*\n|\s*\n)*\s*\d+[ \t]+\d+[ \t]*\r?\n", block)
+                    if m:
+                        pos += m.end()
+                        block = block[m.end():]
+                        skip = False
+                if block:
+                    yield self._parse(block, pos)
+                pos += len(block)
+
+
+def open(path, **options) -> TextSource:  # noqa: A001 - the format-module interface
+    return TextSource(path, **options)
+
+
+def save(path, events, time_unit: str = "s") -> None:
+    """Write a chunk as `t x y p` lines (t in seconds with 6 decimals, or integer µs)."""
+    with builtins.open(path, "w") as f:
+        if time_unit == "s":
+            for t, x, y, p in zip(events.t / 1e6, events.x, events.y, events.p):
+                f.write(f"{t:.6f} {x} {y} {p}\n")
+        else:
+            for t, x, y, p in zip(events.t, events.x, events.y, events.p):
+                f.write(f"{t} {x} {y} {p}\n")
