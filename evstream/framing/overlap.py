@@ -168,15 +168,18 @@ class SlidingFramer(FramerBase):
 @register("framer", "oa")
 @dataclass(eq=False)
 class OverlapAccumulation(SlidingFramer):
-    """OA: frames `window_us` long, one every `stride_us` (stride <= window; equal is FW)."""
+    """OA: frames `window_us` long, one every `stride_us` (stride <= window; equal is FW; default half
+    the window)."""
 
     window_us: int = 10_000
-    stride_us: int = 5_000
+    stride_us: int | None = None
     all_events: bool = False
     max_empty_frames: int = 1000
 
     def __post_init__(self):
         check_positive_int(self, "window_us")
+        if self.stride_us is None:
+            self.stride_us = max(1, self.window_us // 2)
         check_positive_int(self, "stride_us")
         if self.stride_us > self.window_us:
             raise ValueError(f"oa: stride_us ({self.stride_us}) must not exceed window_us "
@@ -200,13 +203,13 @@ class AdaptiveOverlap(SlidingFramer):
     follows the event count: O += `k_us_per_event`·(n − `n_base`), clamped to [0, `overlap_max_us`].
 
     Defaults: Δt = 10 ms, N_base = 8000 events (for a 346×260 sensor; scale it with the pixel count
-    and the scene), k = 0.001 ms = 1 µs per event (the paper's), O_max = Δt/2 = 5 ms (ours: frame rate
-    at most 2/Δt, and each event is accumulated at most twice)."""
+    and the scene), k = 0.001 ms = 1 µs per event (the paper's), O_max = Δt/2 = 5 ms (ours, the default
+    for any Δt: frame rate at most 2/Δt, and each event is accumulated at most twice)."""
 
     window_us: int = 10_000
     n_base: int = 8000
     k_us_per_event: float = 1.0
-    overlap_max_us: int = 5_000
+    overlap_max_us: int | None = None
     overlap_init_us: int = 0
     all_events: bool = False
     max_empty_frames: int = 1000
@@ -214,6 +217,8 @@ class AdaptiveOverlap(SlidingFramer):
     def __post_init__(self):
         check_positive_int(self, "window_us")
         check_nonnegative_int(self, "n_base")
+        if self.overlap_max_us is None:
+            self.overlap_max_us = self.window_us // 2
         check_nonnegative_int(self, "overlap_max_us")
         check_nonnegative_int(self, "overlap_init_us")
         k = self.k_us_per_event
