@@ -66,6 +66,11 @@ class BackgroundActivityFilter(ScoredClassifier):
         self.tau_us = int(self.tau_us)
         self._last = None
 
+    @property
+    def history_us(self) -> int:
+        """Warm-up before decisions are at full strength: one correlation time."""
+        return self.tau_us
+
     def _allocate(self, g):
         self._last = np.full((g.height + 2, g.width + 2), NEVER_US, np.int64)
 

@@ -75,6 +75,11 @@ class DoubleWindowFilter(ScoredClassifier):
         self._fill = np.zeros(2, np.int64)
         self._head = np.zeros(2, np.int64)
 
+    @property
+    def history_us(self) -> int:
+        """No time constant: the warm-up is counted in events (2 · window_events), not time."""
+        return 0
+
     def _allocate(self, g):
         pass  # the windows do not depend on the sensor size
 

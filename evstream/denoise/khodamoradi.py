@@ -75,6 +75,11 @@ class KhodamoradiFilter(ScoredClassifier):
         self.tau_us, self.k, self.polarity_match = int(self.tau_us), int(self.k), bool(self.polarity_match)
         self._cols = self._rows = None
 
+    @property
+    def history_us(self) -> int:
+        """Warm-up before decisions are at full strength: one correlation time."""
+        return self.tau_us
+
     def _allocate(self, g):
         # (timestamp, position along the line, polarity); padded cells never fire
         self._cols = (np.full(g.width + 2, NEVER_US, np.int64), np.zeros(g.width + 2, np.int32),

@@ -48,6 +48,11 @@ class RefractoryFilter(ScoredClassifier):
         self.refractory_us = int(self.refractory_us)
         self._last = None
 
+    @property
+    def history_us(self) -> int:
+        """Warm-up before decisions are at full strength: one refractory period."""
+        return self.refractory_us
+
     def _allocate(self, g):
         self._last = np.full((g.height, g.width), NEVER_US, np.int64)
 

@@ -95,6 +95,11 @@ class SpatioTemporalCorrelationFilter(ScoredClassifier):
         self._last = self._last_p = None
         self._newest = np.empty(self.k, np.int64)
 
+    @property
+    def history_us(self) -> int:
+        """Warm-up before decisions are at full strength: one correlation time."""
+        return self.tau_us
+
     def _allocate(self, g):
         r = self.radius_px
         self._width_padded = g.width + 2 * r

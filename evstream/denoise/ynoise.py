@@ -110,6 +110,11 @@ class YNoiseFilter(ScoredClassifier):
         self.polarity_match, self.hot_ratio = bool(self.polarity_match), float(self.hot_ratio)
         self._ring_t = self._ring_p = self._head = self._newest = None
 
+    @property
+    def history_us(self) -> int:
+        """Warm-up before decisions are at full strength: the longer of the two windows."""
+        return max(self.window_us, self.hot_window_us)
+
     def _allocate(self, g):
         r = self.radius_px
         shape = (g.height + 2 * r, g.width + 2 * r)
