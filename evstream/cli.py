@@ -29,7 +29,22 @@ class UsageError(Exception):
 def _open(path: str, args=None):
     from sources import open_source
 
-    return open_source(path)
+    options = {}
+    if getattr(args, "geometry", None):
+        try:
+            w, h = (int(v) for v in args.geometry.lower().split("x"))
+            options["geometry"] = Geometry(w, h)
+        except ValueError:
+            raise UsageError(f"--geometry {args.geometry}: expected WIDTHxHEIGHT, e.g. 640x480") from None
+    if getattr(args, "timestamps", None):
+        options["timestamps"] = args.timestamps
+    return open_source(path, **options)
+
+
+def _add_source_flags(p) -> None:
+    p.add_argument("--geometry", metavar="WxH", help="sensor size, overriding the file's")
+    p.add_argument("--timestamps", choices=["error", "sort", "drop"],
+                   help="what to do with timestamps that go back (default: the format's)")
 
 
 def _default_denoise(has_labels: bool) -> str:
@@ -80,7 +95,7 @@ class Progress:
 
 # -- commands ---------------------------------------------------------------------------------------
 def cmd_info(args) -> int:
-    source = _open(args.source)
+    source = _open(args.source, args)
     n = 0
     on = 0
     t_first = t_last = None
@@ -164,7 +179,7 @@ def cmd_replay(args) -> int:
         raise UsageError(f"--{outputs[0]} and --{outputs[1]}: choose one place for the Rerun output")
     if args.point_budget < 0:
         raise UsageError(f"--point-budget {args.point_budget}: must be >= 0 (0 = every event)")
-    source = _open(args.source)
+    source = _open(args.source, args)
     pipeline = _pipeline(args, source)
     _attach_framer(pipeline, args)
     save, spawn = args.save, args.spawn
@@ -246,7 +261,7 @@ def cmd_frames(args) -> int:
         raise UsageError("--framer none: name a framer (fw, fn, oa, adaptive)")
     rows = []
     for kind in kinds_:
-        source = _open(args.source)
+        source = _open(args.source, args)
         pipeline = _pipeline(args, source)
         pipeline.framer = build("framer", framer_options.framer_spec(kind, args))
         fstats = FrameStats()  # fed per chunk: frames the end of the stream cut short are left out
@@ -290,6 +305,41 @@ def _summary_line(s: RunStats) -> str:
     pc = s.per_class
     return (f"{s.events_in:,} events in {s.wall_s:.2f} s ({s.throughput_hz / 1e6:.1f} M ev/s): "
             f"signal {pc[0]:,}, background {pc[1]:,}, hot pixel {pc[2]:,}")
+
+
+def cmd_convert(args) -> int:
+    from sources import hdf5, native, prophesee_raw
+
+    out = Path(args.out)
+    kind = out.suffix.lower()
+    if kind not in (".npz", ".raw", ".h5", ".hdf5"):
+        raise UsageError(f"{args.out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
+    if out.resolve() == Path(args.source).resolve():
+        raise UsageError("convert: the output would overwrite the input")
+    source = _open(args.source, args)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if kind == ".raw":
+        n = prophesee_raw.save(out, source, source.geometry, version=f"evt{args.evt}")
+        fmt = f"evt{args.evt}"
+    else:
+        from .events import concat
+
+        events = concat(list(source), source.geometry)  # these writers take whole arrays
+        n = len(events)
+        if kind == ".npz":
+            native.save(out, events, {"converted_from": str(args.source),
+                                      "source_format": getattr(source, "format", "?")})
+            fmt = "native"
+        else:
+            hdf5.save(out, events)
+            fmt = "hdf5"
+    summary = {"source": args.source, "out": str(out), "format": fmt, "events": n,
+               "width": source.geometry.width, "height": source.geometry.height}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {out} ({fmt}, {source.geometry}): {n:,} events")
+    return 0
 
 
 def cmd_synth(args) -> int:
@@ -386,11 +436,13 @@ def parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("info", help="describe a recording")
     p.add_argument("source")
+    _add_source_flags(p)
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("replay", help="replay a recording through a pipeline into the Rerun viewer")
     p.add_argument("source")
+    _add_source_flags(p)
     _add_pipeline_flags(p)
     p.add_argument("--speed", type=float, default=0.0, help="1 = real time, 0 = as fast as possible")
     p.add_argument("--save", metavar="OUT.rrd", help="write a Rerun recording")
@@ -418,6 +470,14 @@ def parser() -> argparse.ArgumentParser:
                    help="PNG rendering: paper (gray, ON white, OFF black), signed, or a colour map")
     p.add_argument("--json", action="store_true", help="print the statistics as JSON")
     p.set_defaults(func=cmd_frames)
+
+    p = sub.add_parser("convert", help="convert a recording: OUT.npz (native), OUT.raw (EVT3), OUT.h5")
+    p.add_argument("source")
+    p.add_argument("out")
+    _add_source_flags(p)
+    p.add_argument("--evt", choices=["3", "2"], default="3", help="EVT version of a .raw output")
+    p.add_argument("--json", action="store_true", help="print what was written as JSON")
+    p.set_defaults(func=cmd_convert)
 
     p = sub.add_parser("synth", help="simulate a scene with ground-truth labels")
     p.add_argument("scene", choices=sorted(synth.SCENES))

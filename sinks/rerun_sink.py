@@ -344,7 +344,7 @@ class RerunSink:
     def _log_stats(self, ends_us: np.ndarray, counts: np.ndarray) -> None:
         if not len(ends_us):
             return
-        starts = np.maximum(ends_us - self.stats_bin_us, self.t0)
+        starts = self.t0 + (ends_us - 1 - self.t0) // self.stats_bin_us * self.stats_bin_us  # bin starts
         span_s = np.maximum(ends_us - starts, 1) * 1e-6
         total = counts.sum(axis=1)
         times = [rr.TimeColumn(TIMELINE, duration=_us(ends_us - self.t0))]
