@@ -12,6 +12,7 @@ or `% Width`/`% Height` lines, else from the camera plugin (Gen3 VGA files carry
 from __future__ import annotations
 
 import builtins
+import itertools
 import os
 import re
 from collections.abc import Iterable, Iterator
@@ -32,6 +33,7 @@ _PLUGIN_GEOMETRY = [
 ]
 _DEFAULT_GEOMETRY = Geometry(1280, 720)
 _VERSIONS = {"2.0": "evt2", "2.1": "evt2.1", "3.0": "evt3"}
+_WRAP_US = 1 << 24
 
 
 def probe(head: bytes, path: str) -> bool:
@@ -112,8 +114,12 @@ class RawSource(FileSource):
         if g is None:
             g, source = _DEFAULT_GEOMETRY, "assumed (no geometry in the header)"
         self.set_geometry(g, source)
+        try:
+            self.t_origin_us = int(self.header.get("t_origin_us", "0").split()[0])
+        except ValueError:
+            raise self.error(f"header t_origin_us {self.header['t_origin_us']!r} is not an integer") from None
         self.details = {"header": {k: v for k, v in self.header.items() if not k.startswith("format_")},
-                        "body_offset": self.body_offset}
+                        "body_offset": self.body_offset, "t_origin_us": self.t_origin_us}
 
     def _blocks(self) -> Iterator[Block]:
         dec = evt3.Evt3Decoder() if self.version == "evt3" else evt2.Evt2Decoder()
@@ -134,6 +140,8 @@ class RawSource(FileSource):
                     raise self.error(
                         f"{unknown} of {words} words in bytes {pos}..{pos + len(data)} have unknown "
                         f"types: not {self.version.upper()} data (corrupt, or a wrong '% evt' header?)", pos)
+                if self.t_origin_us:
+                    t += self.t_origin_us
                 yield Block(t, x, y, p, pos, pos + len(data))
                 pos += len(data)
                 self.counters = dec.counters
@@ -149,37 +157,49 @@ def open(path, **options) -> RawSource:  # noqa: A001 - the format-module interf
 
 # -- writer ----------------------------------------------------------------------------------------
 def save(path: str | os.PathLike, events: EventChunk | Iterable[EventChunk], geometry: Geometry | None = None,
-         version: str = "evt3", header: dict | None = None) -> int:
-    """Write events (a chunk or chunks, timestamps non-decreasing) as a RAW file; returns the count."""
-    chunks = [events] if isinstance(events, EventChunk) else events
+         version: str = "evt3", header: dict | None = None, t_origin_us: int | str = "auto") -> int:
+    """Write events (a chunk or chunks, timestamps non-decreasing) as a RAW file; returns the count.
+
+    EVT timestamps count from the camera's start; absolute clocks (AEDAT4's Unix µs) would take
+    millions of TIME_HIGH wraps, so `t_origin_us` ('auto': a multiple of 2^24 µs below the first event
+    when that is past 2^32 µs, else 0) is subtracted and kept in a `% t_origin_us` header line, which
+    our reader adds back (other readers see time from the origin).
+    """
+    chunks = iter([events] if isinstance(events, EventChunk) else events)
     enc = evt3.Evt3Encoder() if version == "evt3" else evt2.Evt2Encoder() if version == "evt2" else None
     if enc is None:
         raise ValueError(f"version {version!r}: choose 'evt3' or 'evt2'")
-    n = 0
-    it = iter(chunks)
-    first = next(it, None)
-    geometry = geometry or (first.geometry if first is not None else None)
+    held = []  # chunks up to the first non-empty one, which fixes the time origin
+    for c in chunks:
+        held.append(c)
+        if len(c):
+            break
+    geometry = geometry or (held[0].geometry if held else None)
     if geometry is None:
         raise ValueError("save: no events and no geometry given")
     if geometry.width > 2048 or geometry.height > 2048:
         raise ValueError(f"save: EVT addresses are 11 bits; a {geometry} sensor does not fit")
+    t_first = int(held[-1].t[0]) if held and len(held[-1]) else 0
+    if t_origin_us == "auto":
+        t_origin_us = t_first // _WRAP_US * _WRAP_US if t_first >= 1 << 32 else 0
+    t_origin_us = int(t_origin_us)
+    if t_origin_us > t_first:
+        raise ValueError(f"save: t_origin_us {t_origin_us} is after the first event ({t_first} µs)")
     fmt = "EVT3" if version == "evt3" else "EVT2"
     lines = [f"evt {'3.0' if version == 'evt3' else '2.0'}",
              f"format {fmt};height={geometry.height};width={geometry.width}",
              f"geometry {geometry.width}x{geometry.height}", "generator evstream"]
+    if t_origin_us:
+        lines.append(f"t_origin_us {t_origin_us}")
     for k, v in (header or {}).items():
         if not re.fullmatch(r"[A-Za-z0-9_]+", str(k)) or "\n" in str(v):
             raise ValueError(f"save: header entry {k!r} must be a word and a one-line value")
         lines.append(f"{k} {v}")
+    n = 0
     with builtins.open(path, "wb") as f:
         f.write("".join(f"% {ln}\n" for ln in lines).encode() + b"% end\n")
-        for chunk in _chain(first, it):
-            f.write(enc.encode(chunk.t, chunk.x, chunk.y, chunk.p))
-            n += len(chunk)
+        for chunk in itertools.chain(held, chunks):
+            if len(chunk):
+                f.write(enc.encode(chunk.t - t_origin_us, chunk.x, chunk.y, chunk.p))
+                n += len(chunk)
     return n
-
-
-def _chain(first, it):
-    if first is not None:
-        yield first
-    yield from it

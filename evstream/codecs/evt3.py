@@ -218,6 +218,7 @@ def decode(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 # -- encoder -------------------------------------------------------------------------------------
 _MAX_HIGH_STEP = _HIGH_HALF_RANGE - 1  # TIME_HIGH increments the decoder cannot mistake for a wrap
 _VECTOR_MIN_EVENTS = 3  # VECT_BASE_X + VECT_12 (2 words) beats ADDR_X words from 3 events on
+MAX_WRAPS_PER_CALL = 1 << 16  # ~13 days of silence: beyond it the TIME_HIGH steps would swamp the data
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -354,8 +355,13 @@ class Evt3Encoder:
                 f"y={y[bad]}, p={p[bad]}) cannot be written: EVT3 needs non-decreasing t >= 0, x and y "
                 "< 2048, p 0 or 1"
             )
+        wraps = int(t[-1] >> 24) - (self.last_t >> 24)
+        if wraps > MAX_WRAPS_PER_CALL:
+            raise ValueError(
+                f"encode: timestamps jump from {self.last_t} to {t[-1]} µs ({wraps:,} wraps of the 24-bit "
+                "clock, 5 words each): subtract a time origin first (RAW writers keep it in the header)")
         # room: 4 words per event at most, plus TIME_HIGH steps over long gaps (bounded by the span)
-        ramp = 4 * (int(t[-1] >> 24) + 1) + int(t[-1] >> 12) // _MAX_HIGH_STEP + 2
+        ramp = 5 * (wraps + 1) + int((t[-1] >> 12) - (self.last_t >> 12)) // _MAX_HIGH_STEP + 2
         out = np.empty(4 * n + ramp, np.uint16)
         k = _encode_kernel(t, x, y, p, out, self.state)
         self.last_t = int(t[-1])
