@@ -32,7 +32,7 @@ FILTERS = [("baf", BackgroundActivityFilter), ("stcf", SpatioTemporalCorrelation
            ("khodamoradi", KhodamoradiFilter), ("ynoise", YNoiseFilter), ("dwf", DoubleWindowFilter),
            ("refractory", RefractoryFilter),
            # the default 1 s learning window would leave no warm events in these short streams
-           ("hotpixel (200 ms window)", lambda: HotPixelLearner(window_us=200_000))]
+           ("hotpixel (100 ms window)", lambda: HotPixelLearner(window_us=100_000))]
 CHUNK = 50_000
 
 
@@ -63,14 +63,14 @@ def run() -> None:
             def scored(make=make, s=s):
                 return make().classify_scored(s)
 
-            report(f"{name}: kernel, one call", events_per_s(kernel, n, repeat=3))
-            report(f"{name}: stage, {CHUNK // 1000}k chunks", events_per_s(staged, n, repeat=3))
+            report(f"{name}: kernel, one call", events_per_s(kernel, n, repeat=5))
+            report(f"{name}: stage, {CHUNK // 1000}k chunks", events_per_s(staged, n, repeat=5))
             codes, score = scored()
-            warm = s.t >= (400_000 if name.startswith("hotpixel") else 50_000)  # skip the history window
+            warm = s.t >= (200_000 if name.startswith("hotpixel") else 50_000)  # skip the history window
             lab = s.label[warm]
             keep = codes[warm] == NoiseClass.SIGNAL
             rm = metrics.removal_rates(lab, keep)
-            report(f"{name}: scored pass", events_per_s(scored, n, repeat=3),
+            report(f"{name}: scored pass", events_per_s(scored, n, repeat=5),
                    state_B_per_px=f"{state_nbytes(staged()) / g.n_pixels:.1f}",
                    TPR=f"{metrics.tpr(lab, keep):.3f}", EDP=f"{metrics.edp(lab, keep):.1f}",
                    removed_BA=f"{rm['background']:.3f}", removed_hot=f"{rm['hot_pixel']:.3f}",

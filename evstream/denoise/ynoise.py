@@ -52,9 +52,13 @@ def ynoise_kernel(t, x, y, p, ring_t, ring_p, head, newest, radius, window_us, m
                 if ti - newest[r, c] >= horizon:
                     continue  # an idle pixel: skip its ring
                 centre = r == r0 and c == c0
-                for j in range(cap):
-                    age = ti - ring_t[r, c, j]
-                    if age < window_us and (not match or ring_p[r, c, j] == pi):
+                slot = head[r, c]
+                for _ in range(cap):  # newest first, so the first entry past the horizon ends the scan
+                    slot = slot - 1 if slot > 0 else cap - 1
+                    age = ti - ring_t[r, c, slot]
+                    if age >= horizon:
+                        break
+                    if age < window_us and (not match or ring_p[r, c, slot] == pi):
                         density += 1
                     if age < hot_window_us:
                         if centre:
