@@ -1,0 +1,104 @@
+"""Events <-> `EventPacket`s: how evstream fills `time_base`, the header stamp and the payload, and how it
+reads packets back (ours and other tools').
+
+Writing (`to_packet`), for both encodings: `time_base` = header stamp = the packet's first event time
+in ns (event_camera_codecs' encoders set time_base to the packet's start sensor time the same way).
+
+- `evt3`: the payload is the sensor's 24-bit µs clock as a camera sends it (event_camera_codecs' EVT3
+  encoder does the same): TIME_HIGH and TIME_LOW of the first event (t mod 2^24), then the events, with
+  the clock's wraps spelled 4095 -> 0 inside the packet. So a stateful decoder fed the packets in order
+  (event_camera_codecs, faery over the concatenated payloads, `Evt3Decoder`) follows the clock, and
+  each packet also decodes alone: t = E + decoded, with E = t0 − t0 mod 2^24 from `time_base`.
+- `mono`: dt = t − time_base in ns (uint32), so a mono packet spans at most 4.29 s.
+
+Reading (`PacketDecoder`): event_camera_msgs leaves `time_base` undefined for evt3, so packets from
+other tools are decoded as one stream (state across packets, `time_base` ignored, as event_camera_codecs
+does); packets evstream wrote (`absolute=True`, told by channel metadata) decode alone, each placed by
+its `time_base`, which survives any gap between packets. Mono: t = time_base + dt.
+"""
+
+from __future__ import annotations
+
+import struct
+
+from . import evt3, mono
+from .event_packet import EventPacket, PacketError
+
+__all__ = ["ENCODINGS", "EVT3_EPOCH_US", "PacketDecoder", "evt3_sensor_clock", "to_packet"]
+
+ENCODINGS = ("evt3", "mono")
+EVT3_EPOCH_US = 1 << 24  # the EVT3 clock wraps every 2^24 µs ≈ 16.8 s
+_NS_PER_US = 1000
+
+
+def evt3_sensor_clock(t, x, y, p) -> bytes:
+    """EVT3 bytes of one packet on the 24-bit sensor clock: TIME_HIGH of t[0] mod 2^24 first, no steps from 0.
+
+    Decoded alone this gives t − E (E = t[0] − t[0] mod 2^24). Built on `evt3.Evt3Encoder` by starting it
+    at the first event's time-high (state = [started, time-high, time-low, y]) and writing that TIME_HIGH.
+    """
+    if len(t) == 0:
+        return b""
+    t0 = int(t[0])
+    if t0 < 0:
+        raise ValueError(f"evt3: event 0 has t={t0} µs; EVT3 needs t >= 0")
+    high = t0 >> 12
+    enc = evt3.Evt3Encoder()
+    enc.state[:] = (1, high, -1, -1)
+    enc.last_t = t0
+    return struct.pack("<H", 0x8000 | (high & 0xFFF)) + enc.encode(t, x, y, p)
+
+
+def to_packet(t, x, y, p, *, width: int, height: int, encoding: str = "evt3", seq: int = 0,
+              frame_id: str = "") -> EventPacket:
+    """One packet holding events (t µs non-decreasing, ≥ 0); time_base = stamp = t[0] in ns."""
+    if len(t) == 0:
+        raise ValueError("to_packet: a packet needs at least one event")
+    t0_ns = int(t[0]) * _NS_PER_US
+    if encoding == "evt3":
+        payload = evt3_sensor_clock(t, x, y, p)
+    elif encoding == "mono":
+        payload = mono.encode(t, x, y, p, t0_ns)
+    else:
+        raise ValueError(f"unknown event encoding {encoding!r}; choose from {', '.join(ENCODINGS)}")
+    return EventPacket(events=payload, encoding=encoding, width=width, height=height, seq=seq,
+                       time_base=t0_ns, stamp_ns=t0_ns, frame_id=frame_id)
+
+
+class PacketDecoder:
+    """Decodes the packets of one channel, in order, into (t µs, x, y, p) arrays.
+
+    `absolute` True: evstream's packets (each EVT3 packet decoded alone and placed by its time_base).
+    False: other tools' packets (one EVT3 stream across packets; time_base ignored for evt3).
+    `counters` sums the EVT3 decoder's counters (unknown words, triggers, time steps back, ...).
+    """
+
+    def __init__(self, absolute: bool = False):
+        self.absolute = absolute
+        self._stream = evt3.Evt3Decoder()
+        self.counters = dict.fromkeys(evt3.COUNTER_NAMES, 0)
+
+    def decode(self, packet: EventPacket):
+        enc = packet.encoding.lower()
+        if enc == "evt3":
+            if packet.is_bigendian:
+                raise PacketError("evt3 packet marked big-endian: EVT3 words are little-endian")
+            if self.absolute:
+                dec = evt3.Evt3Decoder()
+                t, x, y, p = dec.decode(packet.events)
+                epoch = (packet.time_base // _NS_PER_US) // EVT3_EPOCH_US * EVT3_EPOCH_US
+                t = t + epoch
+                counts = dec.counters
+            else:
+                before = self._stream.counters
+                t, x, y, p = self._stream.decode(packet.events)
+                counts = {k: v - before[k] for k, v in self._stream.counters.items()}
+            for k, v in counts.items():
+                self.counters[k] += v
+            return t, x, y, p
+        if enc == "mono":
+            try:
+                return mono.decode(packet.events, packet.time_base, packet.is_bigendian)
+            except ValueError as e:
+                raise PacketError(str(e)) from None
+        raise PacketError(f"unsupported event encoding {packet.encoding!r} (readable: {', '.join(ENCODINGS)})")

@@ -1,0 +1,207 @@
+"""EventPacket CDR codec, the mono encoding and evstream's packet conventions, checked against independent
+implementations: mcap_ros2's CDR serializer and parser, faery's EVT3 decoder, plain-Python references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
+
+from evstream.codecs import evt3, mono, packets
+from evstream.codecs.event_packet import (
+    DATATYPE,
+    MSGDEF,
+    EventPacket,
+    PacketError,
+    decode_packet,
+    encode_packet,
+)
+
+ROS_DECODE = generate_dynamic(DATATYPE, MSGDEF)[DATATYPE]
+ROS_ENCODE = serialize_dynamic(DATATYPE, MSGDEF)[DATATYPE]
+
+names = st.text(st.characters(blacklist_characters="\x00", blacklist_categories=("Cs",)), max_size=12)
+event_packets = st.builds(
+    EventPacket,
+    events=st.binary(max_size=64),
+    encoding=names,
+    width=st.integers(0, 2**32 - 1),
+    height=st.integers(0, 2**32 - 1),
+    seq=st.integers(0, 2**64 - 1),
+    time_base=st.integers(0, 2**64 - 1),
+    stamp_ns=st.integers(-(2**31) * 10**9, 2**31 * 10**9 - 1),
+    frame_id=names,
+    is_bigendian=st.booleans(),
+)
+
+
+def _as_ros(pk: EventPacket) -> dict:
+    sec, nanosec = pk.stamp
+    return {"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": pk.frame_id},
+            "height": pk.height, "width": pk.width, "seq": pk.seq, "time_base": pk.time_base,
+            "encoding": pk.encoding, "is_bigendian": pk.is_bigendian, "events": pk.events}
+
+
+# -- CDR --------------------------------------------------------------------------------------------------
+@given(event_packets)
+def test_cdr_round_trip_and_bytes_match_mcap_ros2(pk):
+    data = encode_packet(pk)
+    assert decode_packet(data) == pk
+    assert data == ROS_ENCODE(_as_ros(pk))  # byte for byte what mcap_ros2 serializes
+    msg = ROS_DECODE(data)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == pk.stamp
+    assert (msg.header.frame_id, msg.encoding, msg.width, msg.height) == (pk.frame_id, pk.encoding, pk.width,
+                                                                          pk.height)
+    assert (msg.seq, msg.time_base, msg.is_bigendian, bytes(msg.events)) == (pk.seq, pk.time_base,
+                                                                             pk.is_bigendian, pk.events)
+
+
+@given(event_packets)
+def test_big_endian_encapsulation_round_trips(pk):
+    data = encode_packet(pk, big_endian=True)
+    assert data[:2] == b"\x00\x00"
+    assert decode_packet(data) == pk
+    assert ROS_DECODE(data).seq == pk.seq  # mcap_ros2 reads big-endian CDR too
+
+
+def test_every_truncation_is_a_clear_error():
+    data = encode_packet(EventPacket(events=bytes(range(40)), frame_id="cam", seq=7, width=346, height=260))
+    for cut in range(len(data)):
+        with pytest.raises(PacketError, match="EventPacket"):
+            decode_packet(data[:cut])
+
+
+def test_hostile_lengths_fail_before_allocating():
+    good = bytearray(encode_packet(EventPacket(events=b"abcd", frame_id="c")))
+    bad = bytearray(good)
+    bad[-8:-4] = (0xFFFFFFF0).to_bytes(4, "little")  # events length: 4 GiB
+    with pytest.raises(PacketError, match="events needs 4294967280 bytes"):
+        decode_packet(bytes(bad))
+    bad = bytearray(good)
+    bad[12:16] = (1 << 30).to_bytes(4, "little")  # frame_id length
+    with pytest.raises(PacketError, match="bad string length"):
+        decode_packet(bytes(bad))
+    with pytest.raises(PacketError, match="exceeds the limit"):
+        decode_packet(bytes(good), max_bytes=10)
+    with pytest.raises(PacketError, match="encapsulation"):
+        decode_packet(b"\x00\x02\x00\x00" + bytes(good[4:]))
+    bad = bytearray(good)
+    bad[8:12] = (2_000_000_000).to_bytes(4, "little")  # nanosec >= 1e9
+    with pytest.raises(PacketError, match="nanosec"):
+        decode_packet(bytes(bad))
+
+
+def test_encoder_refuses_values_that_do_not_fit():
+    for kwargs in ({"seq": -1}, {"width": 2**32}, {"time_base": 2**64}, {"frame_id": "a\x00b"},
+                   {"stamp_ns": 2**31 * 10**9}):
+        with pytest.raises(PacketError):
+            encode_packet(EventPacket(events=b"", **kwargs))
+
+
+# -- mono -------------------------------------------------------------------------------------------------
+def mono_reference(data: bytes, time_base: int):
+    """event_camera_msgs' mono layout, word by word, in plain Python."""
+    out = []
+    for i in range(0, len(data), 8):
+        w = int.from_bytes(data[i : i + 8], "little")
+        out.append(((time_base + (w & 0xFFFFFFFF)) // 1000, (w >> 32) & 0xFFFF, (w >> 48) & 0x7FFF, w >> 63))
+    return out
+
+
+@st.composite
+def event_arrays(draw, max_x=65535, max_y=2047, span_us=4_000_000):
+    n = draw(st.integers(0, 200))
+    seed = draw(st.integers(0, 2**32 - 1))
+    t0 = draw(st.integers(0, 2**40))
+    rng = np.random.default_rng(seed)
+    t = t0 + np.sort(rng.integers(0, span_us, n))
+    return (t.astype(np.int64), rng.integers(0, max_x + 1, n).astype(np.uint16),
+            rng.integers(0, max_y + 1, n).astype(np.uint16), rng.integers(0, 2, n).astype(np.uint8))
+
+
+@given(event_arrays(max_y=32767))
+def test_mono_round_trip_against_reference(ev):
+    t, x, y, p = ev
+    base = int(t[0]) * 1000 if len(t) else 0
+    data = mono.encode(t, x, y, p, base)
+    assert len(data) == 8 * len(t)
+    got = mono.decode(data, base)
+    for a, b in zip(got, ev):
+        np.testing.assert_array_equal(a, b)
+    assert mono_reference(data, base) == list(zip(*(a.tolist() for a in ev)))
+
+
+def test_mono_refuses_what_it_cannot_carry():
+    with pytest.raises(ValueError, match="dt must be"):
+        mono.encode([0, 5_000_000], [1, 1], [1, 1], [0, 1], 0)  # 5 s > 2^32 ns
+    with pytest.raises(ValueError, match="whole number"):
+        mono.decode(b"\x00" * 12, 0)
+
+
+# -- packets: evstream's conventions ---------------------------------------------------------------------
+def _cut(ev, n_packets, seed):
+    rng = np.random.default_rng(seed)
+    n = len(ev[0])
+    bounds = np.unique(np.concatenate([[0, n], rng.integers(1, max(n, 2), n_packets)]))
+    bounds = bounds[bounds <= n]
+    return [tuple(a[i:j] for a in ev) for i, j in zip(bounds[:-1], bounds[1:]) if j > i]
+
+
+@given(event_arrays(max_x=2047, span_us=60_000_000), st.integers(1, 8), st.integers(0, 99))
+def test_evt3_packets_decode_alone_and_as_one_stream(ev, n_packets, seed):
+    parts = _cut(ev, n_packets, seed)
+    pks = [packets.to_packet(*part, width=2048, height=2048, seq=i) for i, part in enumerate(parts)]
+    alone = packets.PacketDecoder(absolute=True)
+    got = [alone.decode(decode_packet(encode_packet(pk))) for pk in pks]
+    for a, b in zip(got, parts):
+        for u, v in zip(a, b):
+            np.testing.assert_array_equal(u, v)
+    for pk, part in zip(pks, parts):
+        assert pk.time_base == pk.stamp_ns == int(part[0][0]) * 1000
+        first = int.from_bytes(pk.events[:2], "little")
+        assert first == 0x8000 | ((int(part[0][0]) >> 12) & 0xFFF)  # the camera's own TIME_HIGH first
+    if parts:  # one stateful decoder over consecutive packets (event_camera_codecs' way) follows the clock
+        stream = packets.PacketDecoder(absolute=False)
+        t_stream = np.concatenate([stream.decode(pk)[0] for pk in pks])
+        t_all = np.concatenate([part[0] for part in parts])
+        gaps_ok = np.all(np.diff(np.concatenate([[part[0][0], part[0][-1]] for part in parts])) < (1 << 23))
+        if gaps_ok:
+            np.testing.assert_array_equal(t_stream, t_all - (int(t_all[0]) >> 24 << 24))
+
+
+def test_faery_decodes_our_packets_identically(tmp_path):
+    faery = pytest.importorskip("faery")
+    rng = np.random.default_rng(5)
+    n = 30_000
+    t = np.sort(rng.integers(3_000_000, 50_000_000, n)).astype(np.int64)  # crosses two 24-bit wraps
+    x = rng.integers(0, 1280, n).astype(np.uint16)
+    y = rng.integers(0, 720, n).astype(np.uint16)
+    p = rng.integers(0, 2, n).astype(np.uint8)
+    t[500:560], y[500:560], p[500:560], x[500:560] = t[500], 7, 1, np.arange(100, 160)  # vectors
+    t[560:] = np.maximum(t[560:], t[500])
+    body = b"".join(packets.to_packet(t[a : a + 997], x[a : a + 997], y[a : a + 997], p[a : a + 997],
+                                      width=1280, height=720).events for a in range(0, n, 997))
+    path = tmp_path / "packets.raw"
+    path.write_bytes(b"% evt 3.0\n% format EVT3;height=720;width=1280\n% end\n" + body)
+    ev = np.concatenate([c for c in faery.events_stream_from_file(path) if len(c)])
+    epoch = int(t[0]) >> 24 << 24
+    np.testing.assert_array_equal(ev["t"].astype(np.int64) + epoch, t)
+    np.testing.assert_array_equal(ev["x"], x)
+    np.testing.assert_array_equal(ev["y"], y)
+    np.testing.assert_array_equal(ev["on"].astype(np.uint8), p)
+    np.testing.assert_array_equal(evt3.decode(body)[0] + epoch, t)
+
+
+def test_unknown_encoding_and_unknown_words():
+    with pytest.raises(ValueError, match="unknown event encoding"):
+        packets.to_packet([1], [1], [1], [1], width=4, height=4, encoding="evt9")
+    with pytest.raises(PacketError, match="unsupported event encoding"):
+        packets.PacketDecoder().decode(EventPacket(events=b"", encoding="evt9"))
+    pk = packets.to_packet(np.array([5, 9]), np.array([1, 2]), np.array([3, 3]), np.array([0, 1]), width=4, height=4)
+    junk = EventPacket(events=pk.events[:2] + b"\x00\xd0\x00\x90" + pk.events[2:], time_base=pk.time_base)
+    dec = packets.PacketDecoder(absolute=True)
+    t, x, y, p = dec.decode(junk)  # 0xD and 0x9 word types are unknown: skipped and counted
+    assert t.tolist() == [5, 9] and x.tolist() == [1, 2]
+    assert dec.counters["unknown"] == 2
