@@ -43,7 +43,7 @@ class Aedat2Source(FileSource):
     def _blocks(self) -> Iterator[Block]:
         unwrap = Unwrapper(32)
         for raw, pos in iter_records(self, self.body_offset, 8):
-            w = raw.view(">u4").reshape(-1, 2)
+            w = raw.view(">u4").reshape(-1, 2).astype(np.uint32)  # native byte order for numba
             addr = w[:, 0]
             x = (127 - ((addr >> 1) & 127)).astype(np.uint16)
             y = ((addr >> 8) & 127).astype(np.uint16)

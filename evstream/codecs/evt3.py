@@ -194,7 +194,7 @@ class Evt3Decoder:
         while start < len(words):
             rest = words[start:]
             # most streams carry about one event per word; grow only when vectors are denser
-            cap = min(len(rest) * _MAX_EVENTS_PER_WORD, 2 * len(rest) + 64)
+            cap = min(len(rest) * _MAX_EVENTS_PER_WORD, len(rest) + 64)
             out_t = np.empty(cap, np.int64)
             out_x = np.empty(cap, np.uint16)
             out_y = np.empty(cap, np.uint16)
