@@ -34,6 +34,8 @@ def _ratio(a: float, b: float) -> float:
 
 def confusion(label, keep) -> dict[str, int]:
     """Counts with SIGNAL as the positive class: tp (signal kept), fp (noise kept), fn, tn."""
+    if label is None or keep is None:
+        raise ValueError("metrics need ground-truth labels and the denoiser's decisions (got None)")
     label = np.asarray(label)
     kept = _kept(keep)
     if label.shape != kept.shape:
@@ -102,6 +104,8 @@ def summary(label, keep) -> dict[str, float]:
 # -- ROC -----------------------------------------------------------------------------------------
 def _roc_counts(label, score):
     """Cumulative (tp, fp) at each distinct score, highest first, and the scores; plus class totals."""
+    if label is None or score is None:
+        raise ValueError("ROC needs ground-truth labels and per-event scores (got None)")
     label = np.asarray(label)
     score = np.asarray(score, dtype=np.float64)
     if label.shape != score.shape:

@@ -47,6 +47,8 @@ def test_edge_cases_are_documented_values_not_errors():
         metrics.edp(LABEL, CLS[:3])
     with pytest.raises(ValueError, match="events"):
         metrics.roc_curve(LABEL, np.zeros(2))
+    with pytest.raises(ValueError, match="labels"):
+        metrics.tpr(None, CLS)  # an unlabelled recording
 
 
 def test_hand_computed_roc():
