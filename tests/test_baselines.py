@@ -303,3 +303,20 @@ def test_filters_remove_their_noise(noisy, name, min_signal, max_ba, max_hot):
 def test_refractory_thins_fast_pixels_only(noisy):
     kept = _rates(RefractoryFilter(refractory_us=1000), noisy)
     assert kept[SIG] > 0.95 and kept[BA] > 0.98 and kept[HOT] < 0.5, kept
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_scored_stage_call_matches_the_plain_call(name):
+    """`scored` classifies like `stage(chunk)` and scores only the events still SIGNAL (NaN for others)."""
+    cls_ = CASES[name][1]
+    s = random_stream(9, 300)
+    pre = RefractoryFilter(refractory_us=300)(s)  # some events already classed noise
+    ref_stage = cls_()
+    plain = concat([ref_stage(c) for c in split(pre, [0, 100, 101, 300])]).cls
+    stage = cls_()
+    outs = [stage.scored(c) for c in split(pre, [0, 100, 101, 300])]
+    np.testing.assert_array_equal(np.concatenate([o[0].cls for o in outs]), plain)
+    scores = np.concatenate([o[1] for o in outs])
+    seen = pre.cls == SIG
+    assert np.isnan(scores[~seen]).all() and not np.isnan(scores[seen]).any() and (~seen).any()
+    np.testing.assert_array_equal(scores[seen], cls_().classify_scored(s[np.flatnonzero(seen)])[1])

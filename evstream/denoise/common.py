@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..events import EventChunk, Geometry
+from ..events import EventChunk, Geometry, NoiseClass
 from .base import Classifier
 
 # Timestamp of "never fired": far in the past, yet `t - NEVER_US` cannot overflow int64 for |t| < 2**62.
@@ -22,6 +22,20 @@ class ScoredClassifier(Classifier):
     """Base of the baselines: parameters checked at construction, state allocated on the first chunk."""
 
     _geometry: Geometry | None = None
+
+    def scored(self, chunk: EventChunk) -> tuple[EventChunk, np.ndarray]:
+        """As `stage(chunk)`, also returning one score per event of the chunk: NaN for events this
+        stage did not see (an earlier stage had already classed them noise), which the metrics count
+        as never kept. Same interface as the paper's cascade, so evaluation treats all alike."""
+        cls = chunk.classes().copy()
+        live = np.flatnonzero(cls == NoiseClass.SIGNAL)
+        scores = np.full(len(chunk), np.nan)
+        if len(live) == len(cls):
+            codes, scores = self.classify_scored(chunk)
+            cls = np.ascontiguousarray(codes, dtype=np.uint8)
+        else:
+            cls[live], scores[live] = self.classify_scored(chunk[live])
+        return chunk.replace(cls=cls), scores
 
     def score(self, chunk: EventChunk) -> np.ndarray:
         """Per-event scores (float64, higher = more signal-like); advances the state like `classify`."""
