@@ -53,10 +53,10 @@ def run() -> None:
                     k += len(f.push(c))
                 frames[0] = k + len(f.finish())
 
-            hz = events_per_s(feed, n, repeat=5)
+            hz = events_per_s(feed, n, repeat=7)
             peak = peak_alloc_bytes(feed)
             report(f"{name} ({label})", hz, frames_per_s=f"{frames[0] / (n / rate):.0f}",
-                   peak_MB=f"{peak / 2**20:.1f}")
+                   cpu_us_per_frame=f"{n / hz / frames[0] * 1e6:.0f}", peak_MB=f"{peak / 2**20:.1f}")
     # the kernel alone: one frame, one chunk (no per-frame cost)
     stream = tiled(4, 20)
     f = FixedWindow(window_us=1 << 40)
