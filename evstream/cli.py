@@ -166,7 +166,8 @@ class LagMeter:
         if not self.lags_s:
             return {}
         lags = np.asarray(self.lags_s) * 1e3
-        return {"lag_mean_ms": float(lags.mean()), "lag_p99_ms": float(np.percentile(lags, 99)),
+        return {"lag_median_ms": float(np.median(lags)), "lag_mean_ms": float(lags.mean()),
+                "lag_p99_ms": float(np.percentile(lags, 99)),
                 "lag_max_ms": float(lags.max()), "lag_end_ms": float(lags[-1])}
 
 
@@ -219,8 +220,8 @@ def cmd_replay(args) -> int:
                       f"dropped by the point budget ({args.point_budget:,}/s); frames and stats use all")
             if lag.lags_s:
                 d = lag.as_dict()
-                print(f"real-time lag: mean {d['lag_mean_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "
-                      f"max {d['lag_max_ms']:.1f} ms")
+                print(f"real-time lag: median {d['lag_median_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "
+                      f"max {d['lag_max_ms']:.1f} ms, at the end {d['lag_end_ms']:.1f} ms")
             if save:
                 print(f"wrote {save} — open it with:  rerun {save}   (or: evstream replay --spawn / --serve)")
         sys.stdout.flush()
@@ -233,6 +234,86 @@ def cmd_replay(args) -> int:
     finally:
         out.stop()
     return 0
+
+
+class _StopOnSignal:
+    """SIGINT/SIGTERM stop the stream after the chunk in progress, so sinks close their files properly;
+    a second signal interrupts at once (sinks are still closed by `Pipeline.run`)."""
+
+    def __init__(self):
+        self.signum = None
+        self._old = {}
+
+    def __enter__(self):
+        import signal
+
+        for s in (signal.SIGINT, signal.SIGTERM):
+            self._old[s] = signal.signal(s, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        for s, handler in self._old.items():
+            signal.signal(s, handler)
+
+    def _handle(self, signum, frame):
+        if self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
+
+    def chunks(self, source):
+        for chunk in source:
+            yield chunk
+            if self.signum is not None:
+                return
+
+
+def cmd_archive(args) -> int:
+    """Clean a recording into an MCAP archive (EventPackets, noise per class, frames, provenance)."""
+    import signal
+
+    from sinks.mcap_sink import McapSink
+
+    if not args.out.endswith(".mcap"):
+        raise UsageError(f"{args.out}: the archive's name must end in .mcap")
+    source = _open(args.source, args)
+    pipeline = _pipeline(args, source)
+    _attach_framer(pipeline, args)
+    if args.frames and pipeline.framer is None:
+        pipeline.framer = build("framer", {"kind": "fw"})
+    provenance = {"source": str(args.source), "source_format": getattr(source, "format", type(source).__name__),
+                  "width": source.geometry.width, "height": source.geometry.height,
+                  "pipeline": pipeline.describe(), "command": sys.argv[1:] or None, "evstream": _version()}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
+                    frames=pipeline.framer is not None, points=args.points, packet_us=args.packet_us,
+                    flush_s=args.flush_s, metadata=provenance, geometry=source.geometry)
+    progress = Progress(total=None)
+    with _StopOnSignal() as stop:
+        stats = pipeline.run(stop.chunks(paced(source, args.speed)), [sink], on_batch=progress)
+    progress.done()
+    summary = {**stats.as_dict(), "mcap": args.out, "packets": sink.packets, "frames_written": sink.frames_written,
+               "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
+    if args.json:
+        print(json.dumps(summary), flush=True)
+    else:
+        print(_summary_line(stats))
+        print(f"wrote {args.out}: {sink.packets:,} event packets, {sink.frames_written:,} frames")
+    if stop.signum is not None:
+        print(f"evstream: interrupted by {signal.Signals(stop.signum).name}; {args.out} is complete up to there",
+              file=sys.stderr)
+        return 128 + int(stop.signum)
+    return 0
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("evstream")
+    except Exception:  # not installed (running from a source tree)
+        return "unknown"
 
 
 def _attach_framer(pipeline: Pipeline, args) -> None:
@@ -460,6 +541,25 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print run statistics as JSON")
     framer_options.add_framer_flags(p)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("archive", help="clean a recording into an MCAP archive (ROS 2, Foxglove, Rerun open it)")
+    p.add_argument("source")
+    p.add_argument("out", metavar="OUT.mcap")
+    _add_source_flags(p)
+    _add_pipeline_flags(p)
+    p.add_argument("--keep-noise", action="store_true",
+                   help="also write the removed events, one topic per noise class (nothing is lost)")
+    p.add_argument("--frames", action="store_true", help="write frames (foxglove.RawImage); --framer picks (fw)")
+    p.add_argument("--points", action="store_true", help="write X-Y-T point clouds (foxglove.PointCloud)")
+    p.add_argument("--camera", default="camera", help="topic prefix: /CAMERA/events ... (default camera)")
+    p.add_argument("--encoding", choices=["evt3", "mono"], default="evt3", help="EventPacket encoding")
+    p.add_argument("--packet-us", type=int, default=10_000, help="event time per packet (default 10000)")
+    p.add_argument("--flush-s", type=float, default=1.0,
+                   help="close a chunk at least this often: what a crash can lose (default 1 s)")
+    p.add_argument("--speed", type=float, default=0.0, help="1 = real time, 0 = as fast as possible")
+    p.add_argument("--json", action="store_true", help="print run statistics as JSON")
+    framer_options.add_framer_flags(p)
+    p.set_defaults(func=cmd_archive)
 
     p = sub.add_parser("frames", help="frame a recording; print frame rate and events per frame, write PNGs")
     p.add_argument("source")
