@@ -298,3 +298,35 @@ def test_counts_saturate_and_n_events_stays_exact(make):
     frames = frames_of(make(), [s])
     assert frames[0].n_events == n and frames[0].counts[1, 2, 3] == 65535
     assert frames[0].counts.dtype == np.uint16 and frames[0].image[2, 3] == 65535
+
+
+@pytest.mark.parametrize("make", [
+    lambda: FixedWindow(window_us=300),
+    lambda: FixedCount(n_events=20),
+    lambda: AdaptiveOverlap(window_us=400, n_base=5, overlap_max_us=200),
+], ids=["fw", "fn", "adaptive"])
+def test_recycled_count_buffers_never_touch_frames_still_held(make):
+    """Buffers of dropped frames are reused; frames a consumer keeps stay as they were emitted."""
+    s = random_stream(11, 3000, G, mean_dt_us=10)
+    expected = frames_of(make(), [s])
+    f = make()
+    kept = []
+    for c in split(s, list(range(0, len(s), 97)) + [len(s)]):
+        frames = f.push(c)
+        kept.extend(frames[::2])  # the others are dropped here: their buffers go back to the pool
+    kept.extend(f.finish())
+    assert f._pool is None  # finish() reset the framer
+    by_key = {(fr.t_start, fr.t_end, fr.n_events): fr for fr in expected}
+    assert len(by_key) == len(expected) and len(kept) > len(expected) // 3
+    for fr in kept:
+        assert_frames_equal([fr], [by_key[(fr.t_start, fr.t_end, fr.n_events)]], "a kept frame")
+
+
+def test_count_buffers_are_recycled():
+    f = FixedWindow(window_us=100)
+    s = random_stream(12, 2000, G, mean_dt_us=10)
+    most = 0
+    for c in split(s, list(range(0, len(s), 100)) + [len(s)]):
+        most = max(most, len(f.push(c)))  # frames dropped at once
+    # buffers come back to be reused: the pool holds what one batch of frames needed, not the stream
+    assert 0 < len(f._pool) <= most + 1 < 20
