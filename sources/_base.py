@@ -53,6 +53,7 @@ class Block:
     byte_start: int = 0
     byte_end: int = 0
     record_bytes: int = 0
+    locate: object = None  # optional: event index in this block -> its byte offset in the file
 
     def __len__(self) -> int:
         return len(self.t)
@@ -242,6 +243,8 @@ class FileSource:
             i = int(np.argmax(bad))
             if b.record_bytes:
                 where = f"at byte {b.byte_start + i * b.record_bytes}"
+            elif b.locate is not None:
+                where = f"at byte {b.locate(i)}"
             else:
                 where = f"in bytes {b.byte_start}..{b.byte_end}"
             hint = "" if self.geometry_override else " (pass geometry=(width, height) if the file's is wrong)"
@@ -310,7 +313,8 @@ def read_header_lines(f, prefix: bytes, max_bytes: int = 1 << 20,
     return lines, pos
 
 
-def iter_records(source: FileSource, offset: int, record_bytes: int) -> Iterator[tuple[np.ndarray, int]]:
+def iter_records(source: FileSource, offset: int, record_bytes: int,
+                 warn: bool = True) -> Iterator[tuple[np.ndarray, int]]:
     """Whole fixed-size records of `source.path` from byte `offset`, as (uint8 array, byte start)
     blocks of about `source.block_bytes`; warns about a partial record at the end."""
     per_block = max(1, source.block_bytes // record_bytes) * record_bytes
@@ -322,7 +326,7 @@ def iter_records(source: FileSource, offset: int, record_bytes: int) -> Iterator
             whole = len(data) - len(data) % record_bytes
             if whole:
                 yield np.frombuffer(data, np.uint8, whole), pos
-            if whole < len(data):
+            if whole < len(data) and warn:
                 source.warn(f"truncated: {len(data) - whole} byte(s) at byte {pos + whole} are a partial "
                             f"{record_bytes}-byte event (ignored)")
             pos += len(data)

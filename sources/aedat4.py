@@ -57,8 +57,10 @@ class Aedat4Source(FileSource):
 
     def _blocks(self) -> Iterator[Block]:
         skipped: dict[str, int] = {}
+        n_packets = 0
         try:
             for packet in _aedat().Decoder(self.path):
+                n_packets += 1
                 ev = packet.get("events")
                 if ev is None or packet["stream_id"] != self.stream_id:
                     kind = next((k for k in packet if k != "stream_id"), "other")
@@ -66,7 +68,10 @@ class Aedat4Source(FileSource):
                     continue
                 yield Block(ev["t"].astype(np.int64), ev["x"], ev["y"], ev["on"].view(np.uint8))
         except Exception as e:  # the Rust decoder's errors (truncated packet, bad LZ4 frame, ...)
-            raise self.error(f"AEDAT4 decoding failed: {e}") from None
+            if n_packets and "fill whole buffer" in str(e):  # a recording cut short: keep what was read
+                self.warn(f"truncated after {n_packets} packets ({e}); the events before are kept")
+                return
+            raise self.error(f"AEDAT4 decoding failed after {n_packets} packets: {e}") from None
         finally:
             self.counters = {f"{k}_packets_skipped": v for k, v in skipped.items()}
 

@@ -85,7 +85,7 @@ class DatSource(FileSource):
 
     def _max_xy(self) -> tuple[int, int]:
         mx = my = 0
-        for raw, _ in iter_records(self, self.body_offset, 8):
+        for raw, _ in iter_records(self, self.body_offset, 8, warn=False):
             _, x, y, _ = self._unpack(raw)
             mx, my = max(mx, int(x.max())), max(my, int(y.max()))
         return mx, my

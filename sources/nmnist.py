@@ -36,8 +36,7 @@ def probe(head: bytes, path: str) -> bool:
 
     if not path.lower().endswith(_EXTENSIONS):
         return False
-    size = os.path.getsize(path)
-    if size % 5 or size == 0:
+    if os.path.getsize(path) < 5:
         return False
     n = min(len(head) // 5, 400)
     if n < 2:
@@ -56,7 +55,7 @@ class NmnistSource(FileSource):
         if self.geometry is None:
             if self.file_size <= _SCAN_LIMIT_BYTES:
                 mx = my = 0
-                for raw, _ in iter_records(self, 0, 5):
+                for raw, _ in iter_records(self, 0, 5, warn=False):
                     _, x, y, _ = _unpack(raw)
                     mx, my = max(mx, int(x.max())), max(my, int(y.max()))
                 self.set_geometry(fit_geometry(mx, my, _SENSORS), "fitted to the events (the format has none)")

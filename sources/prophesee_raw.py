@@ -12,6 +12,7 @@ or `% Width`/`% Height` lines, else from the camera plugin (Gen3 VGA files carry
 from __future__ import annotations
 
 import builtins
+import copy
 import itertools
 import os
 import re
@@ -132,6 +133,7 @@ class RawSource(FileSource):
                 data = f.read(self.block_bytes)
                 if not data:
                     break
+                before = copy.deepcopy(dec)
                 t, x, y, p = dec.decode(data)
                 unknown = dec.counters["unknown"] - unknown_seen
                 unknown_seen += unknown
@@ -142,13 +144,31 @@ class RawSource(FileSource):
                         f"types: not {self.version.upper()} data (corrupt, or a wrong '% evt' header?)", pos)
                 if self.t_origin_us:
                     t += self.t_origin_us
-                yield Block(t, x, y, p, pos, pos + len(data))
+                yield Block(t, x, y, p, pos, pos + len(data), locate=_locator(before, data, pos, word))
                 pos += len(data)
                 self.counters = dec.counters
         self.counters = dec.counters
         if dec.pending_bytes:
             self.warn(f"truncated: the last {dec.pending_bytes} byte(s) at byte {pos - dec.pending_bytes} "
                       f"are half an {self.version.upper()} word (ignored)")
+
+
+def _locator(before, data: bytes, pos: int, word: int):
+    """Event index within a block -> byte offset of the word that made it (binary search over
+    prefixes, decoded from the decoder's state before the block; only run on the error path)."""
+
+    def locate(i: int) -> int:
+        r = before.pending_bytes
+        lo, hi = 1, (r + len(data)) // word
+        while lo < hi:  # smallest word count p whose decode yields more than i events
+            mid = (lo + hi) // 2
+            if len(copy.deepcopy(before).decode(data[: mid * word - r])[0]) > i:
+                hi = mid
+            else:
+                lo = mid + 1
+        return pos - r + (lo - 1) * word
+
+    return locate
 
 
 def open(path, **options) -> RawSource:  # noqa: A001 - the format-module interface
