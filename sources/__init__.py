@@ -11,12 +11,12 @@ import os
 
 from evstream.events import EventError
 
-from . import aedat2, aedat4, dat, hdf5, matlab, native, nmnist, numpy_files, prophesee_raw, text
+from . import aedat2, aedat4, dat, hdf5, matlab, mcap_log, native, nmnist, numpy_files, prophesee_raw, text
 from ._base import EventWarning
 
 # Readers, most specific magic first; each module has probe(head, path) and open(path, **options).
 # N-MNIST binaries have no magic at all: they come last and need their extension.
-FORMATS = [native, numpy_files, hdf5, aedat4, aedat2, matlab, dat, prophesee_raw, text, nmnist]
+FORMATS = [native, numpy_files, hdf5, aedat4, aedat2, matlab, mcap_log, dat, prophesee_raw, text, nmnist]
 
 
 def open_source(uri: str | os.PathLike, **options):

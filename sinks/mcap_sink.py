@@ -1,0 +1,357 @@
+"""MCAP sink: cleaned events, removed noise per class, frames and provenance in one MCAP file that ROS 2
+(`ros2 bag`), Foxglove and Rerun open.
+
+Channels (`<camera>` defaults to "camera"):
+
+| topic                                   | schema (encoding)                              | what                    |
+|-----------------------------------------|------------------------------------------------|-------------------------|
+| `/<camera>/events`                      | event_camera_msgs/msg/EventPacket (ros2msg/cdr) | events classed SIGNAL   |
+| `/<camera>/events/noise/background`     | same                                           | removed: background     |
+| `/<camera>/events/noise/hot_pixel`      | same                                           | removed: hot pixels     |
+| `/<camera>/frames`                      | foxglove.RawImage (protobuf), mono8            | frames (paper's look)   |
+| `/<camera>/events/points`               | foxglove.PointCloud (protobuf)                 | X-Y-T points, `class`   |
+
+The noise channels exist with `keep_noise`; the topic carries each event's noise class, so every event
+and its class can be read back, and ROS 2 tools still see plain EventPackets. Packets hold the events of
+one cell of a fixed event-time grid (`packet_us`, anchored at t = 0; at most `max_packet_events` per
+packet), written cell by cell across all event topics, so a reader can merge the classes back into one
+stream holding a single cell at a time. Metadata records: `evstream` (provenance: pipeline, source,
+geometry, packet grid; at the start) and `evstream.stats` (run statistics; at the end).
+
+Crash safety: chunks (zstd) are closed and handed to the OS every `chunk_bytes` of messages or
+`flush_s` seconds, whichever comes first; a killed writer loses at most the chunk in progress, and
+`sources.mcap_log` reads what came before it from a file without a footer.
+"""
+
+from __future__ import annotations
+
+import collections
+import datetime
+import json
+import re
+import time
+from typing import Any
+
+import numpy as np
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from mcap.writer import CompressionType, Writer
+
+from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
+from evstream.codecs.packets import ENCODINGS, to_packet
+from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass
+from evstream.pipeline import Batch, RunStats
+
+__all__ = ["META_CLASS", "META_PACKET_US", "META_TIME_BASE", "McapSink", "topics"]
+
+# channel metadata keys (a reader tells our packets and their class by them)
+META_CLASS = "evstream.noise_class"
+META_PACKET_US = "evstream.packet_us"
+META_TIME_BASE = "evstream.time_base"
+TIME_BASE_FIRST_EVENT = "first_event_ns"
+
+CLASS_NAMES = {NoiseClass.SIGNAL: "signal", NoiseClass.BACKGROUND: "background",
+               NoiseClass.HOT_PIXEL: "hot_pixel"}
+_CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_NEVER = 1 << 62  # mcap's own chunk_size: we close chunks ourselves
+
+
+def topics(camera: str = "camera") -> dict[str, str]:
+    """Topic names by role: events, noise/background, noise/hot_pixel, frames, points."""
+    return {
+        "signal": f"/{camera}/events",
+        "background": f"/{camera}/events/noise/background",
+        "hot_pixel": f"/{camera}/events/noise/hot_pixel",
+        "frames": f"/{camera}/frames",
+        "points": f"/{camera}/events/points",
+    }
+
+
+def _file_descriptor_set(message_class) -> bytes:
+    """The protobuf schema of `message_class` and its imports, as MCAP's protobuf profile wants it."""
+    fds = FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd) -> None:
+        for dep in fd.dependencies:
+            if dep.name not in seen:
+                seen.add(dep.name)
+                add(dep)
+        fd.CopyToProto(fds.file.add())
+
+    add(message_class.DESCRIPTOR.file)
+    return fds.SerializeToString()
+
+
+def render_mono8(frame: Frame) -> np.ndarray:
+    """The paper's look as mono8 (H, W): 128 background, 255 where ON outnumber OFF, 0 where OFF do."""
+    signed = frame.image
+    out = np.full(signed.shape, 128, np.uint8)
+    out[signed > 0] = 255
+    out[signed < 0] = 0
+    return out
+
+
+class _EventTopic:
+    """Events of one class waiting for their grid cell to close; hands them out cell by cell."""
+
+    def __init__(self, channel_id: int):
+        self.channel_id = channel_id
+        self.seq = 0
+        self.parts: collections.deque = collections.deque()  # (t, x, y, p) views, in stream order
+        self.n = 0
+
+    def add(self, t, x, y, p) -> None:
+        if len(t):
+            self.parts.append((t, x, y, p))
+            self.n += len(t)
+
+    def first_t(self) -> int | None:
+        return int(self.parts[0][0][0]) if self.n else None
+
+    def take_before(self, t_limit: int) -> tuple[np.ndarray, ...] | None:
+        """Remove and return (t, x, y, p) of the events with t < t_limit, or None (no copy of the rest)."""
+        taken = []
+        while self.parts:
+            part = self.parts[0]
+            t = part[0]
+            if t[0] >= t_limit:
+                break
+            if t[-1] < t_limit:
+                taken.append(self.parts.popleft())
+                continue
+            cut = int(np.searchsorted(t, t_limit, side="left"))
+            taken.append(tuple(a[:cut] for a in part))
+            self.parts[0] = tuple(a[cut:] for a in part)
+            break
+        if not taken:
+            return None
+        self.n -= sum(len(part[0]) for part in taken)
+        if len(taken) == 1:
+            return taken[0]
+        return tuple(np.concatenate([part[k] for part in taken]) for k in range(4))
+
+
+class McapSink:
+    """Writes every batch into an MCAP file (see the module docstring for channels and guarantees).
+
+    `keep_noise`: also write the events classed noise, one channel per class (nothing is lost).
+    `frames`: write the framer's frames. `points`: a PointCloud per batch, at most `point_budget` points.
+    `metadata`: provenance written at the start (values JSON-encoded when not strings).
+    """
+
+    def __init__(self, path, *, camera: str = "camera", encoding: str = "evt3", keep_noise: bool = False,
+                 frames: bool = True, points: bool = False, point_budget: int = 50_000,
+                 packet_us: int = 10_000, max_packet_events: int = 200_000, chunk_bytes: int = 4 << 20,
+                 flush_s: float = 1.0, metadata: dict[str, Any] | None = None,
+                 geometry: Geometry | None = None):
+        if not _CAMERA_NAME.match(camera):
+            raise ValueError(f"camera name {camera!r}: letters, digits and '_', starting with a letter")
+        if encoding not in ENCODINGS:
+            raise ValueError(f"unknown event encoding {encoding!r}; choose from {', '.join(ENCODINGS)}")
+        if encoding == "mono" and packet_us > 4_000_000:
+            raise ValueError("mono packets span at most 4.29 s: packet_us must be <= 4000000")
+        for name, v in (("packet_us", packet_us), ("max_packet_events", max_packet_events),
+                        ("chunk_bytes", chunk_bytes), ("point_budget", point_budget)):
+            if int(v) <= 0:
+                raise ValueError(f"{name} must be positive, got {v}")
+        self.path = str(path)
+        self.camera = camera
+        self.encoding = encoding
+        self.keep_noise = keep_noise
+        self.frames = frames
+        self.points = points
+        self.point_budget = int(point_budget)
+        self.packet_us = int(packet_us)
+        self.max_packet_events = int(max_packet_events)
+        self.chunk_bytes = int(chunk_bytes)
+        self.flush_s = float(flush_s)
+        self.topics = topics(camera)
+        self.geometry = geometry
+        self.messages = 0
+        self.packets = 0
+        self.events_written = np.zeros(len(NoiseClass), np.int64)
+        self.frames_written = 0
+        self._t_first: int | None = None
+        self._pending_bytes = 0
+        self._last_flush = time.monotonic()
+        self._closed = False
+        self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._writer = Writer(self._file, chunk_size=_NEVER, compression=CompressionType.ZSTD)
+        profile = "" if (frames or points) else "ros2"  # "ros2": every channel is ROS 2 CDR
+        self._writer.start(profile=profile, library="evstream")
+        self._register(metadata or {})
+        self._file.flush()
+
+    # -- setup ----------------------------------------------------------------------------------------
+    def _register(self, metadata: dict[str, Any]) -> None:
+        w = self._writer
+        packet_schema = w.register_schema(DATATYPE, "ros2msg", MSGDEF.encode())
+        classes = [NoiseClass.SIGNAL] + ([NoiseClass.BACKGROUND, NoiseClass.HOT_PIXEL] if self.keep_noise else [])
+        self._event_topics: dict[NoiseClass, _EventTopic] = {}
+        for c in classes:
+            meta = {META_CLASS: CLASS_NAMES[c], META_TIME_BASE: TIME_BASE_FIRST_EVENT,
+                    META_PACKET_US: str(self.packet_us)}
+            cid = w.register_channel(self.topics[CLASS_NAMES[c]], "cdr", packet_schema, meta)
+            self._event_topics[c] = _EventTopic(cid)
+        if self.frames:
+            sid = w.register_schema("foxglove.RawImage", "protobuf", _file_descriptor_set(RawImage))
+            self._frames_channel = w.register_channel(self.topics["frames"], "protobuf", sid)
+        if self.points:
+            sid = w.register_schema("foxglove.PointCloud", "protobuf", _file_descriptor_set(PointCloud))
+            self._points_channel = w.register_channel(self.topics["points"], "protobuf", sid)
+        meta = {
+            "format": "evstream MCAP archive v1",
+            "camera": self.camera,
+            "encoding": self.encoding,
+            "packet_us": str(self.packet_us),
+            "keep_noise": json.dumps(self.keep_noise),
+            "topics": json.dumps({k: v for k, v in self.topics.items()
+                                  if (k not in ("background", "hot_pixel") or self.keep_noise)
+                                  and (k != "frames" or self.frames) and (k != "points" or self.points)}),
+            "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        }
+        if self.geometry is not None:
+            meta.update(width=str(self.geometry.width), height=str(self.geometry.height))
+        meta.update({k: v if isinstance(v, str) else json.dumps(v, default=str) for k, v in metadata.items()})
+        w.add_metadata("evstream", meta)
+
+    # -- writing -----------------------------------------------------------------------------------
+    def write(self, batch: Batch) -> None:
+        if self._closed:
+            raise RuntimeError("McapSink: write after close")
+        chunk = batch.events
+        if self.geometry is None:
+            self.geometry = chunk.geometry
+        if len(chunk):
+            if self._t_first is None:
+                self._t_first = int(chunk.t[0])
+            self._route(chunk)
+            if self.points:
+                self._write_points(chunk)
+        self._emit_cells(chunk.t_end if not len(chunk) else max(int(chunk.t_end), int(chunk.t[-1])))
+        if self.frames:
+            for frame in batch.frames:
+                self._write_frame(frame)
+        self._maybe_flush()
+
+    def _route(self, chunk: EventChunk) -> None:
+        """Hand each event to its class's topic (SIGNAL when unclassified; noise only with keep_noise)."""
+        cls = chunk.cls
+        if cls is None or not cls.any():
+            self._event_topics[NoiseClass.SIGNAL].add(chunk.t, chunk.x, chunk.y, chunk.p)
+            return
+        for c, topic in self._event_topics.items():
+            m = cls == c
+            topic.add(chunk.t[m], chunk.x[m], chunk.y[m], chunk.p[m])
+        bad = cls >= len(NoiseClass)
+        if bad.any():
+            raise EventError(f"McapSink: noise class {int(cls[np.argmax(bad)])} is unknown")
+
+    def _emit_cells(self, watermark: int) -> None:
+        """Write the packets of every grid cell that the watermark has closed, cell by cell."""
+        cell_end = (watermark // self.packet_us) * self.packet_us  # cells ending at or before this are closed
+        while True:
+            starts = [t for t in (tp.first_t() for tp in self._event_topics.values()) if t is not None]
+            if not starts:
+                return
+            cell = int(min(starts)) // self.packet_us
+            limit = (cell + 1) * self.packet_us
+            if limit > cell_end:
+                return
+            self._write_cell(limit)
+
+    def _write_cell(self, limit: int) -> None:
+        for c, topic in self._event_topics.items():
+            ev = topic.take_before(limit)
+            if ev is None:
+                continue
+            for a in range(0, len(ev[0]), self.max_packet_events):
+                part = tuple(arr[a : a + self.max_packet_events] for arr in ev)
+                self._write_packet(c, topic, *part)
+
+    def _write_packet(self, c: NoiseClass, topic: _EventTopic, t, x, y, p) -> None:
+        g = self.geometry
+        packet = to_packet(t, x, y, p, width=g.width, height=g.height, encoding=self.encoding, seq=topic.seq,
+                           frame_id=self.camera)
+        data = encode_packet(packet)
+        self._writer.add_message(topic.channel_id, log_time=packet.stamp_ns, data=data,
+                                 publish_time=packet.stamp_ns, sequence=topic.seq & 0xFFFFFFFF)
+        topic.seq += 1
+        self.packets += 1
+        self.messages += 1
+        self.events_written[c] += len(t)
+        self._pending_bytes += len(data)
+
+    def _write_frame(self, frame: Frame) -> None:
+        img = render_mono8(frame)
+        t_ns = int(frame.t_end) * 1000
+        msg = RawImage(frame_id=self.camera, width=img.shape[1], height=img.shape[0], encoding="mono8",
+                       step=img.shape[1], data=img.tobytes())
+        msg.timestamp.seconds, msg.timestamp.nanos = divmod(t_ns, 1_000_000_000)
+        data = msg.SerializeToString()
+        self._writer.add_message(self._frames_channel, log_time=t_ns, data=data, publish_time=t_ns,
+                                 sequence=self.frames_written & 0xFFFFFFFF)
+        self.frames_written += 1
+        self.messages += 1
+        self._pending_bytes += len(data)
+
+    def _write_points(self, chunk: EventChunk) -> None:
+        n = len(chunk)
+        idx = np.arange(n) if n <= self.point_budget else np.linspace(0, n - 1, self.point_budget).astype(np.int64)
+        rec = np.zeros(len(idx), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("class", "u1"), ("_", "u1", 3)])
+        rec["x"] = chunk.x[idx]
+        rec["y"] = chunk.y[idx]
+        rec["z"] = (chunk.t[idx] - self._t_first) * 1e-3  # ms since the first event: the T axis
+        rec["class"] = chunk.classes()[idx]
+        t_ns = int(chunk.t[-1]) * 1000
+        msg = PointCloud(frame_id=self.camera, point_stride=16, data=rec.tobytes())
+        msg.timestamp.seconds, msg.timestamp.nanos = divmod(t_ns, 1_000_000_000)
+        msg.pose.orientation.w = 1.0
+        for name, offset, kind in (("x", 0, PackedElementField.FLOAT32), ("y", 4, PackedElementField.FLOAT32),
+                                   ("z", 8, PackedElementField.FLOAT32), ("class", 12, PackedElementField.UINT8)):
+            msg.fields.add(name=name, offset=offset, type=kind)
+        data = msg.SerializeToString()
+        self._writer.add_message(self._points_channel, log_time=t_ns, data=data, publish_time=t_ns)
+        self.messages += 1
+        self._pending_bytes += len(data)
+
+    def _maybe_flush(self) -> None:
+        now = time.monotonic()
+        if self._pending_bytes >= self.chunk_bytes or (self._pending_bytes and now - self._last_flush >= self.flush_s):
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the chunk in progress and hand everything written so far to the OS."""
+        self._writer.flush()  # finalizes the chunk, writes it and its message indexes, flushes the file
+        self._pending_bytes = 0
+        self._last_flush = time.monotonic()
+
+    # -- closing -----------------------------------------------------------------------------------------
+    def close(self, stats: RunStats | None = None) -> None:
+        """Write what is still waiting (the open cells), the statistics, the summary and the footer."""
+        if self._closed:
+            return
+        try:
+            if self.geometry is not None:
+                self._emit_cells(1 << 62)
+            summary = {
+                "packets": self.packets,
+                "frames": self.frames_written,
+                **{f"events_{CLASS_NAMES[c]}": int(self.events_written[c]) for c in NoiseClass},
+            }
+            if stats is not None:
+                summary.update({f"run_{k}": v for k, v in stats.as_dict().items()})
+            self._writer.add_metadata("evstream.stats", {k: json.dumps(v) for k, v in summary.items()})
+            self._writer.finish()
+        finally:
+            self._closed = True
+            self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

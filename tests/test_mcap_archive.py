@@ -1,0 +1,288 @@
+"""MCAP archives for real: write with `McapSink`, read back with `sources.mcap_log`, and open the same
+files with the independent readers other tools use (mcap, mcap_ros2, faery, Rerun's MCAP loader)."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.writer import Writer as Ros2Writer
+
+from evstream.codecs import evt3, mono
+from evstream.codecs.event_packet import DATATYPE, MSGDEF
+from evstream.events import EventChunk, Frame, Geometry, NoiseClass, concat
+from evstream.pipeline import Batch, Pipeline, RunStats
+from evstream.testing import random_bounds, random_stream, split
+from sinks.mcap_sink import McapSink, render_mono8, topics
+from sources import mcap_log, open_source
+
+G = Geometry(64, 48)
+
+
+def classified(seed, n, geometry=G, t0_us=0) -> EventChunk:
+    """A random stream whose `cls` is its ground truth (what a perfect denoiser would write)."""
+    s = random_stream(seed, n, geometry, t0_us=t0_us)
+    return dataclasses.replace(s, cls=s.label.copy())
+
+
+def archive(path, chunks, **kwargs) -> McapSink:
+    sink = McapSink(path, **{"frames": False, **kwargs})
+    Pipeline([]).run(chunks, [sink])
+    return sink
+
+
+def canonical(s: EventChunk) -> EventChunk:
+    """The order an archive gives back: by time; equal times by class; otherwise stream order."""
+    return s[np.lexsort((s.classes(), s.t))]
+
+
+def assert_same(got: EventChunk, want: EventChunk, with_cls=True):
+    assert len(got) == len(want)
+    for f in "txyp":
+        np.testing.assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
+    if with_cls:
+        np.testing.assert_array_equal(got.cls, want.cls)
+
+
+# -- round trip ---------------------------------------------------------------------------------------------
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 3000), packet_us=st.sampled_from([1, 700, 5_000, 10**6]),
+       max_packet=st.sampled_from([1, 37, 200_000]), t0=st.sampled_from([0, 16_777_000, 10**11]),
+       encoding=st.sampled_from(["evt3", "mono"]))
+def test_events_and_classes_round_trip(tmp_path_factory, seed, n, packet_us, max_packet, t0, encoding):
+    s = classified(seed, n, t0_us=t0)
+    path = tmp_path_factory.mktemp("rt") / "a.mcap"
+    archive(path, split(s, random_bounds(seed, n)), keep_noise=True, packet_us=packet_us,
+            max_packet_events=max_packet, encoding=encoding)
+    src = open_source(path, chunk_events=int(np.random.default_rng(seed).integers(1, 5000)))
+    assert src.archive and src.geometry == G
+    got = concat(list(src))
+    assert_same(got, canonical(s))
+    assert not src.truncated
+
+
+def test_signal_only_archive_keeps_stream_order_and_drops_nothing_else(tmp_path):
+    s = classified(3, 5000)
+    sink = archive(tmp_path / "a.mcap", split(s, random_bounds(1, len(s))))
+    got = concat(list(open_source(tmp_path / "a.mcap")))
+    assert_same(got, s[s.cls == 0], with_cls=False)
+    assert got.cls is None
+    assert sink.events_written.tolist() == [int((s.cls == 0).sum()), 0, 0]
+    names = {c.topic for c in make_reader(open(tmp_path / "a.mcap", "rb")).get_summary().channels.values()}
+    assert names == {"/camera/events"}  # noise not kept: no noise topics
+
+
+def test_packets_follow_the_grid_and_the_watermark(tmp_path):
+    s = classified(4, 4000)
+    archive(tmp_path / "a.mcap", split(s, random_bounds(2, len(s))), keep_noise=True, packet_us=2_000)
+    with open(tmp_path / "a.mcap", "rb") as f:
+        reader = make_reader(f)
+        cells = []
+        for _, channel, msg in reader.iter_messages(log_time_order=False):
+            t = DecoderFactory().decoder_for("cdr", reader.get_summary().schemas[channel.schema_id])(msg.data)
+            ts = evt3.decode(bytes(t.events))[0] + (t.time_base // 1000 >> 24 << 24)
+            assert t.time_base == msg.log_time == ts[0] * 1000
+            assert ts[0] // 2000 == ts[-1] // 2000  # one grid cell per packet
+            cells.append(ts[0] // 2000)
+    assert cells == sorted(cells)  # written cell by cell across all topics
+
+
+# -- interop ------------------------------------------------------------------------------------------------
+def test_mcap_ros2_and_faery_decode_our_packets(tmp_path):
+    faery = pytest.importorskip("faery")
+    from mcap.reader import make_reader as reader_of
+
+    s = classified(5, 20_000, Geometry(346, 260), t0_us=16_000_000)  # crosses the 24-bit wrap
+    path = tmp_path / "a.mcap"
+    archive(path, split(s, random_bounds(5, len(s))), keep_noise=True, packet_us=3_000)
+    by_topic: dict[str, list] = {}
+    with open(path, "rb") as f:
+        for schema, channel, _, msg in reader_of(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                log_time_order=False):
+            assert schema.name == DATATYPE and channel.message_encoding == "cdr"
+            assert (msg.width, msg.height, msg.encoding) == (346, 260, "evt3")
+            assert msg.header.frame_id == "camera"
+            by_topic.setdefault(channel.topic, []).append(msg)
+    names = topics("camera")
+    for cls, key in ((0, "signal"), (1, "background"), (2, "hot_pixel")):
+        msgs = by_topic[names[key]]
+        assert [m.seq for m in msgs] == list(range(len(msgs)))
+        body = b"".join(bytes(m.events) for m in msgs)
+        raw = tmp_path / f"{key}.raw"
+        raw.write_bytes(b"% evt 3.0\n% format EVT3;height=260;width=346\n% end\n" + body)
+        ev = np.concatenate([c for c in faery.events_stream_from_file(raw) if len(c)])
+        want = s[s.cls == cls]
+        epoch = int(want.t[0]) >> 24 << 24
+        np.testing.assert_array_equal(ev["t"].astype(np.int64) + epoch, want.t)
+        np.testing.assert_array_equal(ev["x"], want.x)
+        np.testing.assert_array_equal(ev["y"], want.y)
+        np.testing.assert_array_equal(ev["on"].astype(np.uint8), want.p)
+
+
+def _frames(n=4, geometry=G):
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(n):
+        counts = rng.integers(0, 3, (2, geometry.height, geometry.width)).astype(np.uint16)
+        out.append(Frame(10_000 * i, 10_000 * (i + 1), int(counts.sum()), counts))
+    return out
+
+
+def test_rerun_mcap_loader_shows_the_frames(tmp_path):
+    frames = _frames()
+    s = classified(6, 500)
+    path = tmp_path / "f.mcap"
+    sink = McapSink(path, frames=True, points=True)
+    stats = RunStats()
+    sink.write(Batch(s, frames[:2], stats))
+    sink.write(Batch(EventChunk.empty(G, t_end=s.t_end, with_cls=True), frames[2:], stats))
+    sink.close(stats)
+    rrd = tmp_path / "f.rrd"
+    rerun = Path(sys.executable).parent / "rerun"
+    subprocess.run([str(rerun), "mcap", "convert", str(path), "-o", str(rrd)], check=True, capture_output=True,
+                   timeout=120)
+    from rerun.chunk import RrdReader
+
+    images, points = [], 0
+    for chunk in RrdReader(str(rrd)).stream():
+        rb = chunk.to_record_batch()
+        if chunk.entity_path == "/camera/frames" and "Image:buffer" in rb.schema.names:
+            images += rb.column(rb.schema.names.index("Image:buffer")).to_pylist()
+        if chunk.entity_path == "/camera/events/points" and "Points3D:positions" in rb.schema.names:
+            points += sum(len(r) for r in rb.column(rb.schema.names.index("Points3D:positions")).to_pylist() if r)
+    assert len(images) == len(frames)
+    for buf, frame in zip(images, frames):
+        np.testing.assert_array_equal(np.asarray(buf[0], np.uint8).reshape(G.height, G.width), render_mono8(frame))
+    assert points == len(s)
+
+
+def test_provenance_and_stats_metadata(tmp_path):
+    s = classified(7, 1000)
+    path = tmp_path / "m.mcap"
+    sink = McapSink(path, keep_noise=True, frames=False,
+                    metadata={"pipeline": {"stages": [{"kind": "paper"}]}, "source": "x.npz"})
+    Pipeline([]).run([s], [sink])
+    meta = mcap_log.read_metadata(path)
+    prov = mcap_log.provenance(path)
+    assert prov["pipeline"] == {"stages": [{"kind": "paper"}]} and prov["source"] == "x.npz"
+    assert prov["keep_noise"] is True and prov["packet_us"] == 10_000
+    assert int(meta["evstream.stats"]["events_background"]) == int((s.cls == 1).sum())
+    assert int(meta["evstream.stats"]["run_events_in"]) == len(s)
+
+
+# -- other tools' files ---------------------------------------------------------------------------------------
+def _foreign(path, packets_spec, topic="/dvs/events"):
+    """An MCAP written by mcap_ros2's own writer, the way a ROS 2 driver fills EventPackets."""
+    with open(path, "wb") as f:
+        w = Ros2Writer(f)
+        schema = w.register_msgdef(DATATYPE, MSGDEF)
+        for i, (encoding, payload, time_base) in enumerate(packets_spec):
+            msg = {"header": {"stamp": {"sec": 1_700_000_000 + i, "nanosec": 0}, "frame_id": "dvs"},
+                   "height": 480, "width": 640, "seq": i, "time_base": time_base, "encoding": encoding,
+                   "is_bigendian": False, "events": payload}
+            w.write_message(topic, schema, msg, log_time=(1_700_000_000 + i) * 10**9)
+        w.finish()
+
+
+def test_reads_other_tools_evt3_as_one_stream_and_mono_by_time_base(tmp_path):
+    rng = np.random.default_rng(8)
+    n = 3000
+    t = np.sort(rng.integers(0, 40_000_000, n)).astype(np.int64)
+    x, y, p = rng.integers(0, 640, n), rng.integers(0, 480, n), rng.integers(0, 2, n)
+    body = evt3.encode(t, x, y, p)  # a camera's stream, cut at arbitrary byte boundaries between packets
+    cuts = [0, 1001, 1002, 2500, len(body)]
+    _foreign(tmp_path / "e.mcap", [("evt3", body[a:b], 12345) for a, b in zip(cuts[:-1], cuts[1:])])
+    src = open_source(tmp_path / "e.mcap")
+    assert not src.archive and src.geometry == Geometry(640, 480)
+    got = concat(list(src))
+    np.testing.assert_array_equal(got.t, t)
+    np.testing.assert_array_equal(got.x, x)
+    base = 1_700_000_000 * 10**9
+    k = int(np.searchsorted(t, 4_000_000))  # a mono packet spans at most 4.29 s
+    t_abs = t[:k] + base // 1000
+    _foreign(tmp_path / "m.mcap", [("mono", mono.encode(t_abs, x[:k], y[:k], p[:k], base), base)])
+    got = concat(list(open_source(tmp_path / "m.mcap")))
+    np.testing.assert_array_equal(got.t, t_abs)
+    np.testing.assert_array_equal(got.y, y[:k])
+
+
+def test_picks_one_channel_and_names_the_others(tmp_path):
+    t = np.arange(10, dtype=np.int64) * 100
+    body = evt3.encode(t, t % 640, t % 480, t % 2)
+    path = tmp_path / "two.mcap"
+    with open(path, "wb") as f:
+        w = Ros2Writer(f)
+        schema = w.register_msgdef(DATATYPE, MSGDEF)
+        for topic, payload in (("/left/events", body), ("/right/events", body[:8])):
+            msg = {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": "x"}, "height": 480, "width": 640,
+                   "seq": 0, "time_base": 0, "encoding": "evt3", "is_bigendian": False, "events": payload}
+            w.write_message(topic, schema, msg, log_time=1)
+        w.finish()
+    with pytest.warns(UserWarning, match="/right/events"):
+        assert len(concat(list(open_source(path)))) == 10
+    assert len(concat(list(open_source(path, topic="/right/events")))) < 10
+    with pytest.raises(Exception, match="no topic '/nope'"):
+        open_source(path, topic="/nope")
+
+
+# -- damaged files ---------------------------------------------------------------------------------------
+def test_truncated_archive_recovers_every_complete_chunk(tmp_path):
+    s = classified(9, 30_000)
+    path = tmp_path / "full.mcap"
+    sink = McapSink(path, keep_noise=False, frames=False, chunk_bytes=2_000, packet_us=1_000)
+    Pipeline([]).run(split(s, random_bounds(9, len(s), max_chunks=40)), [sink])
+    data = path.read_bytes()
+    want = s[s.cls == 0]
+    chunks = _chunks(path)  # (end offset, messages) of every chunk, by mcap's own stream reader
+    assert len(chunks) > 5
+    ends = [e for e, _ in chunks]
+    for k, cut in enumerate([ends[2] + 7, ends[4] - 3, (ends[-2] + ends[-1]) // 2]):
+        part = tmp_path / f"cut{k}.mcap"
+        part.write_bytes(data[:cut])
+        n_msgs = sum(m for e, m in chunks if e <= cut)
+        with pytest.warns(mcap_log.TruncatedFileWarning, match=f"recovered {n_msgs} event packets"):
+            src = open_source(part)
+            got = concat(list(src))
+        assert src.truncated and src.recovered_messages == n_msgs
+        assert_same(got, want[: len(got)], with_cls=False)  # a prefix, nothing invented
+        assert len(got) > 0
+
+
+def _chunks(path):
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    out = []
+    with open(path, "rb") as f:
+        for rec in StreamReader(f, emit_chunks=True).records:
+            if isinstance(rec, Chunk):
+                out.append((f.tell(), sum(isinstance(r, Message) for r in breakup_chunk(rec))))
+    return out
+
+
+def test_garbage_and_empty_files_are_clear_errors(tmp_path):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(mcap_log.MAGIC + b"\xff" * 20)
+    with pytest.raises(Exception, match="bad.mcap"):
+        open_source(bad)
+    empty = tmp_path / "empty.mcap"
+    McapSink(empty, frames=False).close()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(Exception, match="no event_camera_msgs/msg/EventPacket channel with messages"):
+            open_source(empty)
+
+
+def test_sink_refuses_bad_settings(tmp_path):
+    for kwargs in ({"camera": "1cam"}, {"encoding": "evt9"}, {"packet_us": 0}, {"camera": "a/b"}):
+        with pytest.raises(ValueError):
+            McapSink(tmp_path / "x.mcap", **kwargs)
+    assert NoiseClass.HOT_PIXEL == 2

@@ -1,0 +1,138 @@
+"""`evstream archive` end to end: the command, replaying its output, and real processes stopped by
+SIGINT/SIGTERM (a valid file) or killed with SIGKILL (every complete chunk recovered)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+from evstream.cli import main
+from evstream.events import Geometry, concat
+from evstream.testing import random_stream
+from sources import mcap_log, native, open_source
+
+EVSTREAM = str(Path(sys.executable).parent / "evstream")
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """About 3 s of labelled events at 346x260 (≈ 200k events/s)."""
+    path = tmp_path_factory.mktemp("rec") / "rec.npz"
+    native.save(path, random_stream(11, 600_000, Geometry(346, 260), mean_dt_us=5.0), {"scene": "random"})
+    return path
+
+
+def test_archive_command_and_replay_of_the_archive(recording, tmp_path, capsys):
+    out = tmp_path / "a.mcap"
+    code = main(["archive", str(recording), str(out), "--denoise", "truth", "--keep-noise", "--frames",
+                 "--json"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["events_in"] == 600_000 and summary["frames_written"] > 100 and summary["stopped_by"] is None
+    src = open_source(out)
+    got = concat(list(src))
+    truth = concat(list(open_source(recording)))
+    assert len(got) == len(truth)
+    order = np.lexsort((truth.label, truth.t))
+    np.testing.assert_array_equal(got.t, truth.t[order])
+    np.testing.assert_array_equal(got.cls, truth.label[order])  # the truth stage's classes came back
+    prov = mcap_log.provenance(out)
+    assert prov["pipeline"]["stages"][0]["kind"] == "truth" and prov["pipeline"]["framer"]["kind"] == "fw"
+    assert prov["source"] == str(recording) and prov["width"] == 346
+    assert main(["info", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["events"] == 600_000
+    assert main(["replay", str(out), "--denoise", "none", "--save", str(tmp_path / "r.rrd"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["events_background"] == int(
+        (truth.label == 1).sum())
+
+
+def test_archive_usage_errors(recording, tmp_path):
+    assert main(["archive", str(recording), str(tmp_path / "a.txt")]) == 2
+    assert main(["archive", str(recording), str(tmp_path / "a.mcap"), "--denoise", "nope"]) == 2
+    assert main(["archive", str(tmp_path / "missing.npz"), str(tmp_path / "a.mcap")]) == 1
+
+
+def _start(recording, out, *extra):
+    proc = subprocess.Popen([EVSTREAM, "archive", str(recording), str(out), "--denoise", "truth", "--speed", "1",
+                             "--flush-s", "0.1", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:  # wait until a few chunks are on disk: the pipeline runs
+        if len(_complete_chunks(out)) >= 3:
+            return proc
+        if proc.poll() is not None:
+            raise AssertionError(f"archiver ended early: {proc.communicate()}")
+        time.sleep(0.05)
+    proc.kill()
+    raise AssertionError("archiver wrote no chunks in 60 s")
+
+
+def _complete_chunks(path) -> list[int]:
+    """Messages in each chunk that mcap's own stream reader can read whole (stops at the cut)."""
+    out = []
+    if not os.path.exists(path):
+        return out
+    try:
+        with open(path, "rb") as f:
+            for rec in StreamReader(f, emit_chunks=True).records:
+                if isinstance(rec, Chunk):
+                    out.append(sum(isinstance(r, Message) for r in breakup_chunk(rec, validate_crc=True)))
+    except Exception:  # the end of a file still being written, or cut by a kill
+        pass
+    return out
+
+
+def _full_archive(recording, tmp_path):
+    out = tmp_path / "full.mcap"
+    assert main(["archive", str(recording), str(out), "--denoise", "truth"]) == 0
+    return concat(list(open_source(out)))
+
+
+def test_sigkill_loses_at_most_the_chunk_in_progress(recording, tmp_path):
+    out = tmp_path / "killed.mcap"
+    proc = _start(recording, out)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    with open(out, "rb") as f:
+        assert f.read()[-8:] != mcap_log.MAGIC  # no footer: the writer never finished
+    in_chunks = sum(_complete_chunks(out))
+    with pytest.warns(mcap_log.TruncatedFileWarning, match=f"recovered {in_chunks} event packets"):
+        src = open_source(out)
+        got = concat(list(src))
+    assert src.recovered_messages == in_chunks > 0
+    full = _full_archive(recording, tmp_path)
+    assert 0 < len(got) < len(full)
+    for f in "txyp":
+        np.testing.assert_array_equal(getattr(got, f), getattr(full, f)[: len(got)])
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_sigint_and_sigterm_finish_a_valid_file(recording, tmp_path, sig):
+    out = tmp_path / f"stopped-{sig.name}.mcap"
+    proc = _start(recording, out, "--json")
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + sig, stderr
+    assert f"interrupted by {sig.name}" in stderr.decode()
+    summary = json.loads(stdout.decode().strip().splitlines()[-1])
+    assert summary["stopped_by"] == sig.name and 0 < summary["events_in"] < 600_000
+    with open(out, "rb") as f:
+        assert make_reader(f).get_summary() is not None  # footer and summary written
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a complete file: no truncation warning
+        got = concat(list(open_source(out)))
+    assert len(got) == summary["events_signal"]
+    assert int(mcap_log.read_metadata(out)["evstream.stats"]["run_events_in"]) == summary["events_in"]
