@@ -266,6 +266,11 @@ class RerunSink:
             colors=[CLASS_COLOURS[NoiseClass.HOT_PIXEL]], names=["hot pixel"]), static=True)
         rec.log("stats/events/rate_hz", rr.SeriesLines(colors=[(220, 220, 220)], names=["events/s"]),
                 static=True)
+        if self.framer is not None:
+            rec.log("stats/frames/rate_hz", rr.SeriesLines(colors=[(170, 120, 255)], names=["frames/s"]),
+                    static=True)
+            rec.log("stats/frames/events_per_frame", rr.SeriesLines(colors=[(120, 220, 160)],
+                                                                    names=["events per frame"]), static=True)
         if t0 is not None:
             self.t0 = t0
 
