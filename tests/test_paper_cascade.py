@@ -45,9 +45,9 @@ def density_reference(s: EventChunk, f: DensityFilter):
             score.append(n / (area * f.window_us * 1e-6))
         else:
             gg = 2 * g if f.match_polarity else g
-            expected = max(1.0, f.rho_rel * area * gg / (w * h))
-            keep.append(n >= expected)
-            score.append(n / expected)
+            keep.append(n >= max(1.0, f.rho_rel * area * gg / (w * h)))
+            mean_count = area * gg / (w * h)  # the score: density relative to the sensor's mean
+            score.append(n / mean_count if mean_count > 0 else (math.inf if n > 0 else 0.0))
     return np.array(keep, bool), np.array(score)
 
 
@@ -68,11 +68,13 @@ def dc_reference(s: EventChunk, f: TimeSeriesFilter):
                if (dx, dy) != (0, 0) and 0 <= x + dx < w and 0 <= y + dy < h]
         mean = sum(dc(q) for q in nbs) / len(nbs) if nbs else 0.0
         d = dc((x, y))
+        # the decision in whole bins, as exact as the definition: DC - mean > λ, DC > λ·mean
+        own, nb_active = round(d * n), round(mean * len(nbs) * n)
         if f.form == "difference":
-            hot.append(d - mean > f.lam)
+            hot.append(own * len(nbs) - nb_active > (f.lam * n) * len(nbs) if nbs else own > f.lam * n)
             score.append(d - mean)
         else:
-            hot.append(d > f.lam * mean if mean > 0 else d > f.lam / n)
+            hot.append(own * len(nbs) > f.lam * nb_active if nb_active > 0 else own > f.lam)
             score.append(d / mean if mean > 0 else math.inf)
     return np.array(hot, bool), np.array(score)
 
@@ -107,6 +109,8 @@ def test_density_kernel_matches_brute_force(seed, n, params):
     scores = np.concatenate([sc for _, sc in got]) if got else np.zeros(0)
     assert np.array_equal(codes == NoiseClass.SIGNAL, keep)
     assert np.allclose(scores, score)
+    if params["mode"] == "relative":  # kept iff the score reaches rho_rel (and N >= 1)
+        assert np.array_equal(keep, (score >= params["rho_rel"] - 1e-9) & (score > 0))
 
 
 def test_density_fifo_grows_past_its_initial_capacity():

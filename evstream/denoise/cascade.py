@@ -60,7 +60,7 @@ class PaperCascade:
         d, f = self.density, self.timeseries
         codes = np.zeros(len(chunk), np.uint8)
         s_coarse = d._run(chunk, codes, want_score=True)
-        thr = d.density_hz if d.mode == "absolute" else 1.0
+        thr = d.density_hz if d.mode == "absolute" else d.rho_rel
         score = s_coarse / thr if thr > 0 else s_coarse
         f._run(chunk, codes, want_score=False)
         score[codes == NoiseClass.HOT_PIXEL] = -1.0

@@ -98,7 +98,11 @@ def density_kernel(t, x, y, p, start, codes, noise_code, hsum, padded_width, fif
         if total < threshold:
             codes[i] = noise_code
         if want_score:
-            out_score[i] = total / (area * window_s) if mode == ABSOLUTE else total / threshold
+            if mode == ABSOLUTE:
+                out_score[i] = total / (area * window_s)
+            else:  # density relative to the sensor's mean: keep iff >= rho_rel (and N >= 1)
+                mean_count = area * (per_pol[pl] * 2 if match_polarity else size) / (width * height)
+                out_score[i] = total / mean_count if mean_count > 0 else (np.inf if total > 0 else 0.0)
         pos = corner + radius * padded_width
         for dx in range(L):
             hsum[pos + dx] += 1
@@ -205,8 +209,8 @@ class DensityFilter(Classifier):
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
         """Class codes (SIGNAL or BACKGROUND) and scores of an unclassified chunk: ρ(m) in Hz/pixel
-        (absolute mode) or N(m) / max(1, expected count) (relative mode); an event is kept iff its
-        score >= the threshold (D_th, resp. 1)."""
+        (absolute mode; kept iff >= D_th) or the density relative to the sensor's mean,
+        N(m) · W·H / (L² · g(m)) (relative mode; kept iff >= ρ_rel and N(m) >= 1)."""
         codes = np.zeros(len(chunk), np.uint8)
         return codes, self._run(chunk, codes, want_score=True)
 

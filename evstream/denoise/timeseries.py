@@ -61,6 +61,7 @@ def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bin
     """
     window = (np.uint64(1) << np.uint64(n_bins)) - np.uint64(1) if n_bins < 64 else ~np.uint64(0)
     L = 2 * radius + 1
+    lam_bins = lam * n_bins
     for i in range(len(t)):
         if codes[i] != 0:
             continue
@@ -72,9 +73,9 @@ def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bin
         m = (_aligned(masks[cy, cx], last_bin[cy, cx], b) | np.uint64(1)) & window
         masks[cy, cx] = m
         last_bin[cy, cx] = b
-        dc = popcount64(m) / n_bins
-        if form == DIFFERENCE and not want_score and dc <= lam:
-            continue
+        own = popcount64(m)
+        if form == DIFFERENCE and not want_score and own <= lam_bins:
+            continue  # DC_m <= λ: cannot be hot
         active = 0
         for dy in range(L):
             for dx in range(L):
@@ -83,13 +84,18 @@ def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bin
                     active += popcount64(nb & window)
         n_nb = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
                 * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1) - 1)
-        mean = active / (n_nb * n_bins) if n_nb > 0 else 0.0
+        # decisions in whole bins (exact): DC_m - mean > λ  <=>  own·n_nb - active > λ·n·n_nb
         if form == DIFFERENCE:
-            score = dc - mean
-            hot = score > lam
+            hot = own * n_nb - active > lam_bins * n_nb if n_nb > 0 else own > lam_bins
         else:
-            score = dc / mean if mean > 0 else np.inf
-            hot = dc > lam * mean if mean > 0 else dc > lam / n_bins  # guard: quiet neighbours
+            hot = own * n_nb > lam * active if active > 0 else own > lam  # guard: quiet neighbours
+        if want_score:
+            dc = own / n_bins
+            mean = active / (n_nb * n_bins) if n_nb > 0 else 0.0
+            if form == DIFFERENCE:
+                score = dc - mean
+            else:
+                score = dc / mean if mean > 0 else np.inf
         if hot:
             codes[i] = noise_code
         if want_score:
