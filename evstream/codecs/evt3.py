@@ -49,7 +49,8 @@ _MAX_EVENTS_PER_WORD = 12
 def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     """Decode `words` into the out arrays until the words or the room run out.
 
-    Returns (events written, words consumed); stops before a word that might not fit.
+    Returns (events written, words consumed); stops before a word that might not fit. Word types are
+    tested in order of frequency in camera streams.
     """
     high = state[_HIGH]
     low = state[_LOW]
@@ -65,68 +66,80 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     nw = len(words)
     t = (loops << 24) + (high << 12) + low
     while i < nw:
-        if n + _MAX_EVENTS_PER_WORD > cap:
-            break
         w = np.int64(words[i])
         kind = w >> 12
         payload = w & 0xFFF
-        if kind == 0x2:  # ADDR_X: one event
-            if has_high:
-                if t < last_t:
-                    counters[_TIME_BACK] += 1
-                last_t = t
-                out_t[n] = t
-                out_x[n] = payload & 0x7FF
-                out_y[n] = y
-                out_p[n] = payload >> 11
-                n += 1
-            else:
+        if not has_high:
+            # before the first TIME_HIGH there is no time base: events are counted, not decoded
+            if kind == 0x8:
+                high = payload
+                has_high = 1
+                t = (loops << 24) + (high << 12) + low
+            elif kind == 0x2:
                 counters[_NO_TIME] += 1
+            elif kind == 0x4 or kind == 0x5:
+                m = payload if kind == 0x4 else payload & 0xFF
+                while m:
+                    counters[_NO_TIME] += m & 1
+                    m >>= 1
+                base_x += 12 if kind == 0x4 else 8
+            elif kind == 0x0:
+                y = payload & 0x7FF
+            elif kind == 0x3:
+                base_x = payload & 0x7FF
+                pol = payload >> 11
+            elif kind == 0x6:
+                low = payload
+                t = (loops << 24) + (high << 12) + low
+            else:
+                _count_other(kind, counters)
+            i += 1
+            continue
+        if n + _MAX_EVENTS_PER_WORD > cap:
+            break
+        if kind == 0x2:  # ADDR_X: one event
+            if t < last_t:
+                counters[_TIME_BACK] += 1
+            last_t = t
+            out_t[n] = t
+            out_x[n] = payload & 0x7FF
+            out_y[n] = y
+            out_p[n] = payload >> 11
+            n += 1
+        elif kind == 0x6:  # TIME_LOW
+            low = payload
+            t = (loops << 24) + (high << 12) + low
         elif kind == 0x0:  # ADDR_Y
             y = payload & 0x7FF
         elif kind == 0x4 or kind == 0x5:  # VECT_12, VECT_8
             width = 12 if kind == 0x4 else 8
             mask = payload if kind == 0x4 else payload & 0xFF
-            if has_high:
-                if mask != 0 and t < last_t:
+            if mask != 0:
+                if t < last_t:
                     counters[_TIME_BACK] += 1
-                if mask != 0:
-                    last_t = t
-                for b in range(width):
-                    if (mask >> b) & 1:
-                        out_t[n] = t
-                        out_x[n] = base_x + b
-                        out_y[n] = y
-                        out_p[n] = pol
-                        n += 1
-            else:
-                m = mask
-                while m:
-                    counters[_NO_TIME] += m & 1
-                    m >>= 1
+                last_t = t
+            b = 0
+            while mask:
+                if mask & 1:
+                    out_t[n] = t
+                    out_x[n] = base_x + b
+                    out_y[n] = y
+                    out_p[n] = pol
+                    n += 1
+                mask >>= 1
+                b += 1
             base_x += width
         elif kind == 0x3:  # VECT_BASE_X
             base_x = payload & 0x7FF
             pol = payload >> 11
-        elif kind == 0x6:  # TIME_LOW
-            low = payload
-            t = (loops << 24) + (high << 12) + low
         elif kind == 0x8:  # TIME_HIGH
-            if has_high and payload < high:
-                if high - payload >= _WRAP_MIN_DROP:
-                    loops += 1
-                    counters[_WRAPS] += 1
+            if payload < high and high - payload >= _WRAP_MIN_DROP:
+                loops += 1
+                counters[_WRAPS] += 1
             high = payload
-            has_high = 1
             t = (loops << 24) + (high << 12) + low
-        elif kind == 0xA:
-            counters[_TRIGGER] += 1
-        elif kind == 0xE:
-            counters[_OTHERS] += 1
-        elif kind == 0x7 or kind == 0xF:
-            counters[_CONTINUED] += 1
         else:
-            counters[_UNKNOWN] += 1
+            _count_other(kind, counters)
         i += 1
     state[_HIGH] = high
     state[_LOW] = low
@@ -137,6 +150,19 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     state[_HAS_HIGH] = has_high
     state[_LAST_T] = last_t
     return n, i
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _count_other(kind, counters):
+    """Words that carry no CD event: triggers, OTHERS, CONTINUED, and unknown types."""
+    if kind == 0xA:
+        counters[_TRIGGER] += 1
+    elif kind == 0xE:
+        counters[_OTHERS] += 1
+    elif kind == 0x7 or kind == 0xF:
+        counters[_CONTINUED] += 1
+    else:
+        counters[_UNKNOWN] += 1
 
 
 def _as_bytes_array(data) -> np.ndarray:
