@@ -32,6 +32,7 @@ import re
 import time
 from typing import Any
 
+import numba
 import numpy as np
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
@@ -41,7 +42,7 @@ from mcap.writer import CompressionType, Writer
 
 from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
 from evstream.codecs.packets import ENCODINGS, to_packet
-from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass
+from evstream.events import N_CLASSES, EventChunk, EventError, Frame, Geometry, NoiseClass
 from evstream.pipeline import Batch, RunStats
 
 __all__ = ["META_CLASS", "META_PACKET_US", "META_TIME_BASE", "McapSink", "topics"]
@@ -92,6 +93,52 @@ def render_mono8(frame: Frame) -> np.ndarray:
     out[signed > 0] = 255
     out[signed < 0] = 0
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _group_kernel(cls, t, x, y, p, n_classes, out_t, out_x, out_y, out_p, bounds):
+    """Stable partition of the events by class into the out arrays; `bounds[c]:bounds[c+1]` holds class c.
+
+    Returns the index of the first event whose class is >= n_classes, or -1.
+    """
+    n = len(cls)
+    counts = np.zeros(n_classes, np.int64)
+    for i in range(n):
+        c = cls[i]
+        if c >= n_classes:
+            return i
+        counts[c] += 1
+    bounds[0] = 0
+    for c in range(n_classes):
+        bounds[c + 1] = bounds[c] + counts[c]
+    pos = bounds[:n_classes].copy()
+    for i in range(n):
+        c = cls[i]
+        k = pos[c]
+        out_t[k] = t[i]
+        out_x[k] = x[i]
+        out_y[k] = y[i]
+        out_p[k] = p[i]
+        pos[c] = k + 1
+    return -1
+
+
+def group_by_class(cls, t, x, y, p, n_classes: int):
+    """(bounds, t, x, y, p): the events grouped by class, stream order kept within a class.
+
+    `bounds` has n_classes + 1 entries; on an unknown class, bounds[-1] is that event's index instead.
+    """
+    n = len(cls)
+    if n and not cls.any():  # all SIGNAL: no copy
+        bounds = np.zeros(n_classes + 1, np.int64)
+        bounds[1:] = n
+        return bounds, t, x, y, p
+    out = (np.empty(n, t.dtype), np.empty(n, x.dtype), np.empty(n, y.dtype), np.empty(n, p.dtype))
+    bounds = np.zeros(n_classes + 1, np.int64)
+    bad = _group_kernel(cls, t, x, y, p, n_classes, *out, bounds)
+    if bad >= 0:
+        bounds[-1] = bad
+    return (bounds, *out)
 
 
 class _EventTopic:
@@ -240,15 +287,16 @@ class McapSink:
     def _route(self, chunk: EventChunk) -> None:
         """Hand each event to its class's topic (SIGNAL when unclassified; noise only with keep_noise)."""
         cls = chunk.cls
-        if cls is None or not cls.any():
+        if cls is None:
             self._event_topics[NoiseClass.SIGNAL].add(chunk.t, chunk.x, chunk.y, chunk.p)
             return
+        bounds, t, x, y, p = group_by_class(cls, chunk.t, chunk.x, chunk.y, chunk.p, N_CLASSES)
+        if bounds[-1] != len(cls):
+            raise EventError(f"McapSink: event {int(bounds[-1])} has noise class {int(cls[bounds[-1]])}; "
+                             f"known classes are 0..{N_CLASSES - 1}")
         for c, topic in self._event_topics.items():
-            m = cls == c
-            topic.add(chunk.t[m], chunk.x[m], chunk.y[m], chunk.p[m])
-        bad = cls >= len(NoiseClass)
-        if bad.any():
-            raise EventError(f"McapSink: noise class {int(cls[np.argmax(bad)])} is unknown")
+            a, b = bounds[c], bounds[c + 1]
+            topic.add(t[a:b], x[a:b], y[a:b], p[a:b])
 
     def _emit_cells(self, watermark: int) -> None:
         """Write the packets of every grid cell that the watermark has closed, cell by cell."""
