@@ -91,20 +91,12 @@ def ref_ynoise(s, f: YNoiseFilter):
     codes, scores = [], []
     r = f.radius_px
     for m, (t, x, y, p) in enumerate(ev):
-        per_pixel = {}
-        for e in ev[:m]:
-            per_pixel.setdefault((e[1], e[2]), []).append(e)
-        density = own = around = 0
-        for (xj, yj), es in per_pixel.items():
-            if abs(xj - x) > r or abs(yj - y) > r:
-                continue
-            recent = es[-f.count_cap:]
-            density += sum(t - e[0] < f.window_us and (not f.polarity_match or e[3] == p) for e in recent)
-            n_hot = sum(t - e[0] < f.hot_window_us for e in recent)
-            if (xj, yj) == (x, y):
-                own += n_hot
-            else:
-                around += n_hot
+        latest = _latest_at(ev, m)
+        near = {q: e for q, e in latest.items() if abs(q[0] - x) <= r and abs(q[1] - y) <= r}
+        density = sum(t - tj < f.window_us and (not f.polarity_match or pj == p) for tj, pj in near.values())
+        around = sum(t - tj < f.hot_window_us for q, (tj, _) in near.items() if q != (x, y))
+        own_times = [e[0] for e in ev[:m] if (e[1], e[2]) == (x, y)][-f.count_cap:]
+        own = sum(t - tj < f.hot_window_us for tj in own_times)
         if density < f.threshold:
             codes.append(BA)
             scores.append(float(density))

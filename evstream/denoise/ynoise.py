@@ -1,20 +1,22 @@
 """Feng et al.'s event-density filter, "YNoise" (Appl. Sci. 2020, 10(6):2024), with its hot-pixel test.
 
-Two tests in one pass, over each pixel's ring of its last `count_cap` events (timestamp, polarity):
+Two tests in one pass:
 
-1. density (background activity): D(m) = the past events in m's L×L neighbourhood (L = 2r+1, m's
-   own pixel included) within `window_us` before t (`t - t_j < window_us`; with `polarity_match`,
-   only events of m's polarity), each pixel counting at most `count_cap`. BACKGROUND iff D < threshold.
-2. hot-pixel ratio (for events that pass 1): over the longer `hot_window_us`, c = past events of
-   m's own pixel and s = past events of its neighbours (any polarity). HOT_PIXEL iff c >= hot_min_events
-   and c / (c + s) >= hot_ratio — the neighbourhood's activity is concentrated on one pixel.
+1. density (background activity): D(m) = the pixels of m's L×L neighbourhood (L = 2r+1, m's own
+   pixel included) whose latest event came within `window_us` before t (`t - t_j < window_us`) and,
+   with `polarity_match`, had m's polarity — the L1 norm of the paper's binary density matrix.
+   BACKGROUND iff D < threshold.
+2. hot-pixel ratio (for events that pass 1): over the longer `hot_window_us`, c = past events of m's
+   own pixel (the last `count_cap` are kept per pixel) and s = neighbour pixels active in that window.
+   HOT_PIXEL iff c >= hot_min_events and c / (c + s) >= hot_ratio: the neighbourhood's activity is
+   concentrated on one pixel, which fires again and again.
 
-Defaults of test 1 from the E-MLB benchmark's reference implementation (`yang_noise`, Ding et al.
-2023): window 2 ms, radius 1, threshold 1, polarity matched. Test 2 is our reconstruction of the
-paper's "flicker" decision with ratio R (the reference code has no hot-pixel stage and the paper's
-constants did not survive in our copy): 50 ms, at least 3 events, ratio 0.5 — enough to flag a pixel
-firing at >= 60 Hz whose neighbours are quiet. Simplification: one state fed by every event the stage
-sees (the paper feeds its hot-pixel stage with the density stage's output only).
+Test 1 and its defaults follow the E-MLB benchmark's reference implementation (`yang_noise`, Ding et
+al. 2023): window 2 ms, radius 1, threshold 1, polarity matched. Test 2 is our reconstruction of the
+paper's flicker decision with ratio R (the reference code has no hot-pixel stage and the paper's
+constants did not survive in our copy): 50 ms, at least 3 events, ratio 0.5 — it flags a pixel firing
+at >= 60 Hz while its neighbours are mostly quiet. Simplification: one state fed by every event the
+stage sees (the paper feeds its hot-pixel stage with the density stage's output only).
 
 Score: D for events not flagged hot, -1 for hot ones; kept iff `score >= threshold`, so one pass gives
 the exact ROC curve over the density threshold (hot test fixed).
@@ -33,52 +35,47 @@ from .common import NEVER_US, ScoredClassifier, check, is_int
 
 
 @njit(cache=True, nogil=True)
-def ynoise_kernel(t, x, y, p, ring_t, ring_p, head, newest, radius, window_us, match, threshold, hot_window_us,
+def ynoise_kernel(t, x, y, p, last, last_p, ring, head, radius, window_us, match, threshold, hot_window_us,
                   hot_min_events, hot_ratio, out, score):
-    """Class codes and scores; `ring_t`/`ring_p` (H+2r, W+2r, K) hold each pixel's last K events,
-    `head` (H+2r, W+2r) the next slot, `newest` each pixel's latest timestamp; all updated in place."""
-    cap = ring_t.shape[2]
-    horizon = max(window_us, hot_window_us)
+    """Class codes and scores. `last`/`last_p` (H+2r, W+2r) hold each pixel's latest event, `ring`
+    (H+2r, W+2r, K) its last K timestamps, `head` the next ring slot; all updated in place."""
+    cap = ring.shape[2]
     for i in range(len(t)):
         ti = t[i]
         pi = p[i]
         r0 = y[i] + radius
         c0 = x[i] + radius
         density = 0
-        own = 0
         around = 0
         for r in range(r0 - radius, r0 + radius + 1):
             for c in range(c0 - radius, c0 + radius + 1):
-                if ti - newest[r, c] >= horizon:
-                    continue  # an idle pixel: skip its ring
-                centre = r == r0 and c == c0
-                slot = head[r, c]
-                for _ in range(cap):  # newest first, so the first entry past the horizon ends the scan
-                    slot = slot - 1 if slot > 0 else cap - 1
-                    age = ti - ring_t[r, c, slot]
-                    if age >= horizon:
-                        break
-                    if age < window_us and (not match or ring_p[r, c, slot] == pi):
-                        density += 1
-                    if age < hot_window_us:
-                        if centre:
-                            own += 1
-                        else:
-                            around += 1
+                age = ti - last[r, c]
+                if age < window_us and (not match or last_p[r, c] == pi):
+                    density += 1
+                if age < hot_window_us and (r != r0 or c != c0):
+                    around += 1
         if density < threshold:
             out[i] = 1
             score[i] = density
-        elif own >= hot_min_events and own >= hot_ratio * (own + around):
-            out[i] = 2
-            score[i] = -1.0
         else:
-            out[i] = 0
-            score[i] = density
+            own = 0
+            slot = head[r0, c0]
+            for _ in range(cap):  # newest first: the first one past the window ends the count
+                slot = slot - 1 if slot > 0 else cap - 1
+                if ti - ring[r0, c0, slot] >= hot_window_us:
+                    break
+                own += 1
+            if own >= hot_min_events and own >= hot_ratio * (own + around):
+                out[i] = 2
+                score[i] = -1.0
+            else:
+                out[i] = 0
+                score[i] = density
         h = head[r0, c0]
-        ring_t[r0, c0, h] = ti
-        ring_p[r0, c0, h] = pi
-        head[r0, c0] = (h + 1) % cap
-        newest[r0, c0] = ti
+        ring[r0, c0, h] = ti
+        head[r0, c0] = h + 1 if h + 1 < cap else 0
+        last[r0, c0] = ti
+        last_p[r0, c0] = pi
 
 
 @register("stage", "ynoise")
@@ -112,7 +109,7 @@ class YNoiseFilter(ScoredClassifier):
         check(isinstance(self.hot_ratio, (int, float)) and 0 < self.hot_ratio <= 1, "ynoise",
               f"hot_ratio must be in (0, 1], got {self.hot_ratio!r}")
         self.polarity_match, self.hot_ratio = bool(self.polarity_match), float(self.hot_ratio)
-        self._ring_t = self._ring_p = self._head = self._newest = None
+        self._last = self._last_p = self._ring = self._head = None
 
     @property
     def history_us(self) -> int:
@@ -122,16 +119,16 @@ class YNoiseFilter(ScoredClassifier):
     def _allocate(self, g):
         r = self.radius_px
         shape = (g.height + 2 * r, g.width + 2 * r)
-        self._ring_t = np.full((*shape, self.count_cap), NEVER_US, np.int64)
-        self._ring_p = np.zeros((*shape, self.count_cap), np.uint8)
-        self._head = np.zeros(shape, np.int64)
-        self._newest = np.full(shape, NEVER_US, np.int64)
+        self._last = np.full(shape, NEVER_US, np.int64)
+        self._last_p = np.zeros(shape, np.uint8)
+        self._ring = np.full((*shape, self.count_cap), NEVER_US, np.int64)
+        self._head = np.zeros(shape, np.uint8)
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
         score = np.empty(len(chunk), np.float64)
-        ynoise_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._ring_t, self._ring_p, self._head, self._newest,
+        ynoise_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._last, self._last_p, self._ring, self._head,
                       self.radius_px, self.window_us, self.polarity_match, self.threshold,
                       self.hot_window_us, self.hot_min_events, self.hot_ratio, out, score)
         return out, score
