@@ -330,3 +330,69 @@ def test_count_buffers_are_recycled():
         most = max(most, len(f.push(c)))  # frames dropped at once
     # buffers come back to be reused: the pool holds what one batch of frames needed, not the stream
     assert 0 < len(f._pool) <= most + 1 < 20
+
+
+# -- each numba kernel against plain Python on random input --------------------------------------------
+def _flat(s, i):
+    return int(s.p[i]) * G.n_pixels + int(s.y[i]) * G.width + int(s.x[i])
+
+
+@given(seeds)
+def test_kernels_equal_plain_python(seed):
+    from evstream.framing.fixed import FN_DONE, FN_FULL, FN_TIMEOUT, accumulate, fn_run
+    from evstream.framing.overlap import add_flat, flat_index, flat_index_of
+
+    rng = np.random.default_rng(seed)
+    s = random_stream(rng, int(rng.integers(1, 300)), G)
+    cls = rng.integers(0, 3, len(s)).astype(np.uint8)
+    use_cls = bool(rng.random() < 0.5)
+    a, b = sorted(int(v) for v in rng.integers(0, len(s) + 1, 2))
+    start = rng.integers(0, 65530, 2 * G.n_pixels).astype(np.uint16)  # near saturation too
+
+    counts = start.copy()
+    added = accumulate(s.x, s.y, s.p, cls, use_cls, a, b, counts, G.width, G.n_pixels)
+    want, n = start.astype(np.int64), 0
+    for i in range(a, b):
+        if not use_cls or cls[i] == 0:
+            want[_flat(s, i)] += 1
+            n += 1
+    assert added == n and np.array_equal(counts, np.minimum(want, 65535))
+
+    out = np.zeros(len(s) + 5, np.uint32)
+    flat_index(s.x, s.y, s.p, a, b, G.width, G.n_pixels, out, 3)
+    assert out[3 : 3 + b - a].tolist() == [_flat(s, i) for i in range(a, b)]
+    idx = np.flatnonzero(cls == 0)
+    flat_index_of(s.x, s.y, s.p, idx, G.width, G.n_pixels, out, 1)
+    assert out[1 : 1 + len(idx)].tolist() == [_flat(s, i) for i in idx]
+
+    counts = start.copy()
+    add_flat(counts, out, 1, 1 + len(idx))
+    want = start.astype(np.int64)
+    for f in out[1 : 1 + len(idx)]:
+        want[f] += 1
+    assert np.array_equal(counts, np.minimum(want, 65535))
+
+    # fn_run: fill a frame of n_target from index a, or time out max_window after its first event
+    n_target, max_window = int(rng.integers(1, 50)), int(rng.integers(1, 3000))
+    counts = np.zeros(2 * G.n_pixels, np.uint16)
+    i, have, first, last, status = fn_run(s.t, s.x, s.y, s.p, cls, use_cls, a, counts, G.width, G.n_pixels,
+                                          0, n_target, 0, 0, max_window)
+    j, members, exp_status = a, [], FN_DONE
+    while j < len(s):
+        if members and s.t[j] >= s.t[members[0]] + max_window:
+            exp_status = FN_TIMEOUT
+            break
+        if not use_cls or cls[j] == 0:
+            members.append(j)
+            if len(members) == n_target:
+                j += 1
+                exp_status = FN_FULL
+                break
+        j += 1
+    assert (i, have, status) == (j, len(members), exp_status)
+    if members:
+        assert (first, last) == (s.t[members[0]], s.t[members[-1]])
+    want = np.zeros(2 * G.n_pixels, np.int64)
+    for m in members:
+        want[_flat(s, m)] += 1
+    assert np.array_equal(counts, want)

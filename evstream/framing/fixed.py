@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 from numba import njit
 
 from ..events import EventChunk, Frame
@@ -22,22 +23,24 @@ NEVER_US = 1 << 62  # a deadline no stream reaches
 
 
 @njit(cache=True, nogil=True)
-def fw_run(t, x, y, p, cls, use_cls, i, end_us, counts, width, hw):
-    """Add counted events from index i on while t < end_us to the flat counts [p][y][x] (saturating).
+def accumulate(x, y, p, cls, use_cls, a, b, counts, width, hw):
+    """Add the counted events [a, b) to the flat counts [p][y][x] (saturating); return how many.
 
-    Returns (index of the first event at or past end_us, or len(t); events added)."""
-    n = len(t)
-    added = 0
-    while i < n:
-        if t[i] >= end_us:
-            break
-        if not use_cls or cls[i] == 0:
-            f = p[i] * hw + y[i] * width + x[i]
-            if counts[f] != COUNT_MAX:
-                counts[f] += 1
-            added += 1
-        i += 1
-    return i, added
+    The caller finds b, the frame's end, by binary search: a loop with no time test runs ~1.5x faster."""
+    if use_cls:
+        added = 0
+        for i in range(a, b):
+            if cls[i] == 0:
+                f = p[i] * hw + y[i] * width + x[i]
+                if counts[f] != COUNT_MAX:
+                    counts[f] += 1
+                added += 1
+        return added
+    for i in range(a, b):
+        f = p[i] * hw + y[i] * width + x[i]
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+    return b - a
 
 
 FN_DONE, FN_FULL, FN_TIMEOUT = 0, 1, 2
@@ -99,14 +102,16 @@ class FixedWindow(FramerBase):
                 self.end = self.start + self.window_us
                 self.counts = self._new_counts()
             cls, use_cls = self._cls(chunk)
+            t = chunk.t
             i = 0
             while True:
-                i, added = fw_run(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, self.end,
-                                  self.counts, self._width, self._hw)
-                self.n += added
+                stop = i + int(np.searchsorted(t[i:], self.end, side="left"))
+                self.n += accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, i, stop, self.counts,
+                                     self._width, self._hw)
+                i = stop
                 if i == len(chunk):
                     break
-                self._advance(int(chunk.t[i]), out)
+                self._advance(int(t[i]), out)
         self._advance(watermark(chunk), out)
         return out
 
