@@ -91,7 +91,7 @@ def test_native_viewer_screenshot_shows_the_three_classes(tmp_path):
 
 
 @needs_xvfb
-def test_spawned_viewer_listens_on_loopback_and_renders_the_stream(tmp_path):
+def test_spawned_viewer_listens_on_loopback_and_renders_the_stream(tmp_path, monkeypatch):
     from rerun.experimental import ViewerClient
 
     xvfb = subprocess.Popen(["Xvfb", "-displayfd", "1", "-screen", "0", "6000x4000x24", "-nolisten", "tcp"],
@@ -100,7 +100,7 @@ def test_spawned_viewer_listens_on_loopback_and_renders_the_stream(tmp_path):
     try:
         display = xvfb.stdout.readline().strip()
         assert display, "Xvfb did not start"
-        os.environ["DISPLAY"] = f":{display}"
+        monkeypatch.setenv("DISPLAY", f":{display}")
         port = free_port()
         out = open_output(spawn=True, grpc_port=port, memory_limit="1GiB", log_dir=tmp_path)
         assert out.process is not None
@@ -116,7 +116,6 @@ def test_spawned_viewer_listens_on_loopback_and_renders_the_stream(tmp_path):
         client.save_screenshot(str(png))
         assert_shows_three_classes(png)
     finally:
-        os.environ.pop("DISPLAY", None)
         if out is not None and out.process is not None:
             out.process.terminate()
             out.process.wait(timeout=10)
