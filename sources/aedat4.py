@@ -58,22 +58,44 @@ class Aedat4Source(FileSource):
     def _blocks(self) -> Iterator[Block]:
         skipped: dict[str, int] = {}
         n_packets = 0
+        batch = None  # event packets are small: copy them into one reused batch of records
+        fill = 0
         try:
             for packet in _aedat().Decoder(self.path):
                 n_packets += 1
                 ev = packet.get("events")
                 if ev is None or packet["stream_id"] != self.stream_id:
-                    kind = next((k for k in packet if k != "stream_id"), "other")
+                    kind = "events" if ev is not None else next((k for k in packet if k != "stream_id"), "other")
                     skipped[kind] = skipped.get(kind, 0) + 1
                     continue
-                yield Block(ev["t"].astype(np.int64), ev["x"], ev["y"], ev["on"].view(np.uint8))
+                if batch is None:
+                    batch = np.empty(_BATCH_EVENTS, ev.dtype)
+                i = 0
+                while i < len(ev):
+                    k = min(len(ev) - i, _BATCH_EVENTS - fill)
+                    batch[fill : fill + k] = ev[i : i + k]
+                    fill += k
+                    i += k
+                    if fill == _BATCH_EVENTS:
+                        yield _block(batch[:fill])
+                        fill = 0
         except Exception as e:  # the Rust decoder's errors (truncated packet, bad LZ4 frame, ...)
             if n_packets and "fill whole buffer" in str(e):  # a recording cut short: keep what was read
                 self.warn(f"truncated after {n_packets} packets ({e}); the events before are kept")
-                return
-            raise self.error(f"AEDAT4 decoding failed after {n_packets} packets: {e}") from None
+            else:
+                raise self.error(f"AEDAT4 decoding failed after {n_packets} packets: {e}") from None
         finally:
             self.counters = {f"{k}_packets_skipped": v for k, v in skipped.items()}
+        if fill:
+            yield _block(batch[:fill])
+
+
+_BATCH_EVENTS = 1 << 16
+
+
+def _block(ev: np.ndarray) -> Block:
+    """Our own arrays (copies): the batch they come from is reused."""
+    return Block(ev["t"].astype(np.int64), ev["x"].copy(), ev["y"].copy(), ev["on"].astype(np.uint8))
 
 
 def open(path, **options) -> Aedat4Source:  # noqa: A001 - the format-module interface

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import builtins
 import re
-import warnings
 from collections.abc import Iterator
 
+import numba
 import numpy as np
 
 from evstream.events import Geometry
@@ -24,6 +24,93 @@ NAME = "text (t x y p per line)"
 FORMAT = "text"
 _NUM = rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _SCAN_LIMIT_BYTES = 256 << 20
+
+
+_POW10 = np.array([10.0**k for k in range(-40, 41)])
+
+
+@numba.njit(cache=True, nogil=True)
+def _number(buf, i, n):
+    """Parse a decimal number at buf[i:] (sign, digits, '.', digits, exponent); (value, end, ok)."""
+    neg = False
+    if i < n and (buf[i] == 45 or buf[i] == 43):  # '-' '+'
+        neg = buf[i] == 45
+        i += 1
+    mant = np.int64(0)
+    digits = 0
+    scale = 0
+    while i < n and 48 <= buf[i] <= 57:
+        if digits < 18:
+            mant = mant * 10 + (buf[i] - 48)
+            digits += 1
+        else:
+            scale += 1
+        i += 1
+    if i < n and buf[i] == 46:  # '.'
+        i += 1
+        while i < n and 48 <= buf[i] <= 57:
+            if digits < 18:
+                mant = mant * 10 + (buf[i] - 48)
+                digits += 1
+                scale -= 1
+            i += 1
+    if digits == 0:
+        return 0.0, i, False
+    if i < n and (buf[i] == 101 or buf[i] == 69):  # 'e' 'E'
+        i += 1
+        eneg = False
+        if i < n and (buf[i] == 45 or buf[i] == 43):
+            eneg = buf[i] == 45
+            i += 1
+        e = 0
+        ed = 0
+        while i < n and 48 <= buf[i] <= 57:
+            e = min(e * 10 + (buf[i] - 48), 1000)
+            ed += 1
+            i += 1
+        if ed == 0:
+            return 0.0, i, False
+        scale += -e if eneg else e
+    if scale < -40 or scale > 40:  # rare: tiny or huge values, one rounding more
+        v = mant * 10.0**scale
+    else:
+        v = mant / _POW10[40 - scale] if scale < 0 else mant * _POW10[40 + scale]
+    return (-v if neg else v), i, True
+
+
+@numba.njit(cache=True, nogil=True)
+def _parse_kernel(buf, out):
+    """Lines of 4 numbers (space, tab or comma separated) into `out` rows; blank and #, %, // comment
+    lines skipped. Returns (rows, byte offset of the first bad line or -1)."""
+    n = len(buf)
+    i = 0
+    rows = 0
+    while i < n:
+        start = i
+        while i < n and (buf[i] == 32 or buf[i] == 9):
+            i += 1
+        if i >= n:
+            break
+        c = buf[i]
+        if c == 10 or c == 13 or c == 35 or c == 37 or (c == 47 and i + 1 < n and buf[i + 1] == 47):
+            while i < n and buf[i] != 10:  # blank or comment line
+                i += 1
+            i += 1
+            continue
+        for col in range(4):
+            while i < n and (buf[i] == 32 or buf[i] == 9 or (col > 0 and buf[i] == 44)):
+                i += 1
+            v, i, ok = _number(buf, i, n)
+            if not ok:
+                return rows, start
+            out[rows, col] = v
+        while i < n and (buf[i] == 32 or buf[i] == 9 or buf[i] == 13):
+            i += 1
+        if i < n and buf[i] != 10:
+            return rows, start
+        i += 1
+        rows += 1
+    return rows, -1
 
 
 def _data_lines(head: bytes) -> list[bytes]:
@@ -86,32 +173,14 @@ class TextSource(FileSource):
         self.details = {"time_unit": self.time_unit, "columns": self.columns}
 
     def _parse(self, block: bytes, pos: int) -> Block:
-        n_lines = block.count(b"\n")
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", DeprecationWarning)
-                vals = np.fromstring(block, dtype=np.float64, sep=" ") if block.strip() else np.zeros(0)
-        except ValueError:  # something that is not a number: find and name the line
-            vals = None
-        if vals is None or len(vals) != 4 * n_lines or b"#" in block or b"%" in block:
-            return self._parse_slow(block, pos)
-        cols = vals.reshape(-1, 4).T
-        c = {k: cols[i] for i, k in enumerate(self.columns)}
-        return to_events(self, c["t"], c["x"], c["y"], c["p"], self.time_unit, pos, pos + len(block))
-
-    def _parse_slow(self, block: bytes, pos: int) -> Block:
-        """Line by line: skips comments, names the first bad line by byte offset."""
-        rows = []
-        off = pos
-        for line in block.split(b"\n"):
-            s = line.strip()
-            if s and not s.startswith((b"#", b"%", b"//")):
-                fields = s.split()
-                if len(fields) != 4 or not all(re.fullmatch(_NUM, f) for f in fields):
-                    raise self.error(f"line {line[:60]!r} is not 4 numbers", off)
-                rows.append([float(f) for f in fields])
-            off += len(line) + 1
-        cols = np.array(rows, np.float64).reshape(-1, 4).T
+        buf = np.frombuffer(block, np.uint8)
+        out = np.empty((block.count(b"\n") + 1, 4), np.float64)
+        rows, bad = _parse_kernel(buf, out)
+        if bad >= 0:
+            end = block.find(b"\n", bad)
+            line = block[bad : end if end >= 0 else len(block)].rstrip(b"\r")
+            raise self.error(f"line {line[:60]!r} is not 4 numbers", pos + bad)
+        cols = out[:rows].T
         c = {k: cols[i] for i, k in enumerate(self.columns)}
         return to_events(self, c["t"], c["x"], c["y"], c["p"], self.time_unit, pos, pos + len(block))
 

@@ -7,6 +7,8 @@ import zlib
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from evstream.events import EventChunk, EventError, Geometry, concat
 from evstream.testing import random_stream
@@ -213,7 +215,7 @@ def test_geometry_override_and_a_too_small_one(tmp_path):
     prophesee_raw.save(tmp_path / "a.raw", s)
     assert open_source(tmp_path / "a.raw", geometry=(700, 500)).geometry == Geometry(700, 500)
     assert open_source(tmp_path / "a.raw", geometry="800x600").geometry == Geometry(800, 600)
-    with pytest.raises(EventError, match=r"a.raw in bytes \d+\.\.\d+: event \d+: .* outside the 10x10 sensor"):
+    with pytest.raises(EventError, match=r"a.raw at byte \d+: event \d+: .* outside the 10x10 sensor"):
         list(open_source(tmp_path / "a.raw", geometry=(10, 10)))
     write_dat(tmp_path / "a.dat", s)
     with pytest.raises(EventError, match=r"a.dat at byte \d+: event"):
@@ -264,3 +266,58 @@ def test_replay_runs_at_constant_memory(tmp_path):
     # 13 MB the big stream decodes to
     assert peaks[1_000_000] < 1.25 * peaks[200_000] + (256 << 10), peaks
     assert peaks[1_000_000] < 13_000_000 / 2, peaks
+
+
+# -- the text parser kernel against Python's float() --------------------------------------------------
+number_text = st.one_of(
+    st.integers(-10**12, 10**12).map(str),
+    st.floats(-1e6, 1e6, allow_nan=False).map(lambda v: f"{v:.9f}"),
+    st.floats(-1e6, 1e6, allow_nan=False).map(repr),
+    st.floats(1e-9, 1e3).map(lambda v: f"{v:.3e}"),
+)
+
+
+@given(st.lists(st.tuples(st.lists(number_text, min_size=4, max_size=4), st.sampled_from([" ", "\t", "  "]),
+                          st.sampled_from(["\n", "\r\n", " \n"]), st.booleans()), max_size=30))
+def test_text_kernel_matches_python_float(lines):
+    from sources.text import _parse_kernel
+
+    text_ = ""
+    want = []
+    for fields, sep, end, comment in lines:
+        if comment:
+            text_ += "# a comment line\n"
+        text_ += sep.join(fields) + end
+        want.append([float(f) for f in fields])
+    data = text_.encode()
+    out = np.empty((data.count(b"\n") + 1, 4))
+    rows, bad = _parse_kernel(np.frombuffer(data, np.uint8), out)
+    assert bad == -1 and rows == len(want)
+    np.testing.assert_allclose(out[:rows], np.array(want).reshape(-1, 4), rtol=1e-14, atol=1e-290)  # subnormals aside
+
+
+@given(st.text(alphabet="0123456789.-+eE \t\nx#", max_size=60))
+def test_text_kernel_flags_malformed_lines_like_python(s):
+    from sources.text import _parse_kernel
+
+    data = s.encode()
+    out = np.empty((data.count(b"\n") + 1, 4))
+    rows, bad = _parse_kernel(np.frombuffer(data, np.uint8), out)
+    good = []
+    first_bad = -1
+    pos = 0
+    for line in data.split(b"\n"):
+        body = line.strip(b" \t\r")
+        if body and not body.startswith((b"#", b"%", b"//")):
+            fields = body.split()
+            try:
+                if len(fields) != 4 or any(f.lower().startswith((b"inf", b"nan")) for f in fields):
+                    raise ValueError
+                good.append([float(f) for f in fields])
+            except ValueError:
+                first_bad = pos
+                break
+        pos += len(line) + 1
+    assert bad == first_bad
+    assert rows == len(good)
+    np.testing.assert_allclose(out[:rows], np.array(good).reshape(-1, 4), rtol=1e-14, atol=1e-290)
