@@ -227,6 +227,12 @@ def cmd_replay(args) -> int:
         sys.stdout.flush()
         if out.mode == "serve":
             print(f"serving {out.web_url} until Ctrl-C", file=sys.stderr, flush=True)
+            import signal
+
+            def _stop(signum, frame):
+                raise KeyboardInterrupt
+
+            signal.signal(signal.SIGTERM, _stop)  # a service manager's stop ends the server cleanly too
             try:
                 out.process.wait()
             except KeyboardInterrupt:

@@ -39,6 +39,7 @@ CLASS_COLOURS = {  # RGB, apart on a dark background and for common colour blind
     NoiseClass.BACKGROUND: (255, 150, 30),  # orange
     NoiseClass.HOT_PIXEL: (240, 40, 200),  # magenta
 }
+VIEW_BACKGROUND = (14, 15, 18)
 SLAB_COLOUR = (110, 110, 110)
 NOW_COLOUR = (235, 235, 235)
 STATS_BIN_US = 10_000
@@ -82,6 +83,7 @@ def blueprint(geometry: Geometry, slab_ms: float = 100.0, framer: str | None = N
     events_view = rrb.Spatial3DView(
         origin="/", contents=["events/**", "slab/**"], name=f"events X-Y-T (last {slab_ms:g} ms)",
         time_ranges=slab, eye_controls=eye, line_grid=rrb.LineGrid3D(visible=False),
+        background=VIEW_BACKGROUND,  # the class colours are chosen for a dark ground, in either UI theme
     )
     series = [rrb.TimeSeriesView(origin="stats/events", name="event rate [events/s]"),
               rrb.TimeSeriesView(origin="stats/noise_fraction", name="noise fraction")]

@@ -43,6 +43,18 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def _die_with_parent() -> None:
+    """In the child before exec (Linux): SIGTERM it when the process that started it dies, so a
+    killed replay leaves no server behind."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _connect_host(bind: str) -> str:
     """Address a local client uses to reach a server bound to `bind`."""
     return "127.0.0.1" if bind in ("0.0.0.0", "", "::", "[::]") else bind
@@ -155,6 +167,7 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
              "--server-memory-limit", memory_limit],
             stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
             env={**os.environ, "RERUN_APP_ONLY": "true"},
+            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
         )
     _wait_listening(proc, host, [grpc_port, web_port], 30.0, log)
     grpc_url = f"rerun+http://{host}:{grpc_port}/proxy"

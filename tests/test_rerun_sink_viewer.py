@@ -140,7 +140,8 @@ def _read_json_line(proc: subprocess.Popen, timeout_s: float) -> dict:
     raise AssertionError(f"no JSON summary from the replay; stderr: {proc.stderr.read()[-2000:]}")
 
 
-def test_serve_listens_on_loopback_only_and_accepts_a_local_connection(tmp_path):
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
+def test_serve_listens_on_loopback_only_and_accepts_a_local_connection(tmp_path, stop):
     proc = subprocess.Popen(
         [sys.executable, "-m", "evstream.cli", "replay", str(TURNTABLE), "--serve", "--json", "--denoise", "truth",
          "--memory-limit", "256MiB"],
@@ -164,7 +165,10 @@ def test_serve_listens_on_loopback_only_and_accepts_a_local_connection(tmp_path)
         probe.disconnect()
         assert proc.poll() is None, "the server stopped before Ctrl-C"
     finally:
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(stop)
         code = proc.wait(timeout=20)
-    assert code == 0
+    assert code == (-signal.SIGKILL if stop == signal.SIGKILL else 0)
+    deadline = time.monotonic() + 10  # the server goes with the replay, even when that is killed
+    while is_listening("127.0.0.1", grpc_port) and time.monotonic() < deadline:
+        time.sleep(0.1)
     assert not is_listening("127.0.0.1", grpc_port) and not is_listening("127.0.0.1", web_port)
