@@ -17,13 +17,14 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from evstream.events import Geometry
+from evstream.events import EventError, Geometry
 
 from ._base import Block, FileSource, find_fields, fit_geometry, guess_time_unit, to_events
 
 NAME = "HDF5 (/events/{t,x,y,p} and variants)"
 FORMAT = "hdf5"
 MAGIC = b"\x89HDF\r\n\x1a\n"
+_H5_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError)
 
 
 def probe(head: bytes, path: str) -> bool:
@@ -48,15 +49,20 @@ class Hdf5Source(FileSource):
         h5py = _h5py()
         try:
             self._file = h5py.File(self.path, "r")
-        except OSError as e:
-            raise self.error(f"unreadable HDF5 file: {e}") from None
-        self._layout, self._where, attrs_from = self._find(self._file, columns)
-        t = self._col("t", 0, 1)
-        unit_attr = next((str(o.attrs[k]) for o in attrs_from for k in ("t_unit", "time_unit")
-                          if k in o.attrs), None)
+            self._layout, self._where, attrs_from = self._find(self._file, columns)
+            t = self._col("t", 0, 1)
+            unit_attr = next((str(o.attrs[k]) for o in attrs_from for k in ("t_unit", "time_unit")
+                              if k in o.attrs), None)
+        except EventError:
+            raise
+        except _H5_ERRORS as e:  # h5py reports corruption as any of these
+            raise self.error(f"unreadable HDF5 file: {type(e).__name__}: {e}") from None
         self.time_unit = time_unit or (unit_attr.replace("µs", "us") if unit_attr else guess_time_unit(t))
         for obj in attrs_from:
-            g = _attr_geometry(obj.attrs)
+            try:
+                g = _attr_geometry(obj.attrs)
+            except _H5_ERRORS:
+                g = None
             if g is not None:
                 self.set_geometry(g, f"attributes of {obj.name}")
                 break
@@ -110,7 +116,7 @@ class Hdf5Source(FileSource):
                 ds, field = c
                 return ds[a:b, field] if isinstance(field, int) else ds.fields(field)[a:b]
             return c[a:b]
-        except OSError as e:
+        except _H5_ERRORS as e:
             hint = (" (Prophesee HDF5 needs its ECF filter plugin: pip install hdf5plugin, or convert with "
                     "Metavision)") if "filter" in str(e).lower() or "can't" in str(e).lower() else ""
             raise self.error(f"cannot read events {a}..{b}: {e}{hint}") from None

@@ -110,15 +110,22 @@ def read_variables(path: str) -> dict:
             inner = _Reader(body, endian, start, path)
             ikind, _, istart, iend = inner.tag(0)
             if ikind == _MI_MATRIX:
-                name, arr = inner.matrix(istart, iend)
-                if arr is not None:
-                    out[name] = arr
+                _add(out, inner, istart, iend)
         elif kind == _MI_MATRIX:
-            name, arr = r.matrix(start, start + nbytes)
-            if arr is not None:
-                out[name] = arr
+            _add(out, r, start, start + nbytes)
         pos = nxt
     return out
+
+
+def _add(out: dict, r: _Reader, start: int, end: int) -> None:
+    try:
+        name, arr = r.matrix(start, end)
+    except (ValueError, IndexError, struct.error, OverflowError) as e:
+        if isinstance(e, EventError):
+            raise
+        raise r.fail(start, f"malformed MAT matrix: {e}") from None
+    if arr is not None:
+        out[name] = arr
 
 
 class MatSource(FileSource):

@@ -15,7 +15,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from evstream.events import Geometry
+from evstream.events import EventError, Geometry
 
 from ._base import Block, FileSource, find_fields, fit_geometry, guess_time_unit, to_events
 
@@ -51,8 +51,10 @@ class NumpySource(FileSource):
                 self.format = "npz"
                 self._npz = np.load(self.path, allow_pickle=False)
                 self._cols = self._from_npz(self._npz, columns)
-        except (ValueError, OSError, zipfile.BadZipFile, EOFError) as e:
-            raise self.error(f"unreadable NumPy file: {e}") from None
+        except EventError:
+            raise
+        except Exception as e:  # numpy reports a corrupt header as anything from EOFError to SyntaxError
+            raise self.error(f"unreadable NumPy file: {type(e).__name__}: {e}") from None
         n = len(self._cols["t"])
         if any(len(a) != n for a in self._cols.values()):
             raise self.error(f"arrays differ in length: { {k: len(a) for k, a in self._cols.items()} }")

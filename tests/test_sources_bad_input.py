@@ -2,7 +2,10 @@
 warning where it stopped early) or raises one EventError naming the file (and the byte where it can);
 never another exception, a hang, or events outside the sensor. Fuzzed with hypothesis."""
 
+import functools
+import tempfile
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -48,10 +51,15 @@ def sample_files(d):
     return files
 
 
-@pytest.fixture(scope="module")
-def samples(tmp_path_factory):
-    d = tmp_path_factory.mktemp("samples")
-    return {name: path.read_bytes() for name, path in sample_files(d).items()}
+@functools.cache
+def _samples() -> dict:
+    with tempfile.TemporaryDirectory() as d:
+        return {name: path.read_bytes() for name, path in sample_files(Path(d)).items()}
+
+
+@pytest.fixture
+def samples():
+    return _samples()
 
 
 def test_empty_and_missing_files(tmp_path):
@@ -127,7 +135,8 @@ def _survives(path, data: bytes):
                                   "i.mat"])
 @FUZZ
 @given(cut=st.floats(0, 1), flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=8))
-def test_fuzz_truncated_and_corrupted_files(tmp_path, samples, name, cut, flips):
+def test_fuzz_truncated_and_corrupted_files(tmp_path, name, cut, flips):
+    samples = _samples()
     data = bytearray(samples[name][: max(1, int(len(samples[name]) * cut))])
     for where, value in flips:
         data[int(where * (len(data) - 1))] = value
@@ -137,8 +146,8 @@ def test_fuzz_truncated_and_corrupted_files(tmp_path, samples, name, cut, flips)
 @pytest.mark.parametrize("name", ["a.raw", "b.raw", "c.dat", "e.aedat", "i.mat"])
 @FUZZ
 @given(body=st.binary(min_size=0, max_size=3000))
-def test_fuzz_random_bodies_after_valid_headers(tmp_path, samples, name, body):
-    data = samples[name]
+def test_fuzz_random_bodies_after_valid_headers(tmp_path, name, body):
+    data = _samples()[name]
     marks = {"a.raw": (b"% end\n", 0), "b.raw": (b"% end\n", 0), "c.dat": (b"% Version 2\n", 2),
              "e.aedat": (b"evstream\r\n", 0), "i.mat": (b"IM", 0)}
     mark, extra = marks[name]
