@@ -136,3 +136,20 @@ def test_sigint_and_sigterm_finish_a_valid_file(recording, tmp_path, sig):
         got = concat(list(open_source(out)))
     assert len(got) == summary["events_signal"]
     assert int(mcap_log.read_metadata(out)["evstream.stats"]["run_events_in"]) == summary["events_in"]
+
+
+@pytest.mark.parametrize("name", ["prophesee_gen41_hd_evt3_expelliarmus.raw", "davis346_frames_imu_evlib.aedat4"])
+def test_real_recordings_archive_and_read_back_with_their_classes(real_data, tmp_path, name):
+    from evstream.pipeline import Pipeline, build
+
+    rec = real_data / name
+    out = tmp_path / "real.mcap"
+    assert main(["archive", str(rec), str(out), "--denoise", "paper", "--keep-noise", "--frames"]) == 0
+    pipe = Pipeline([build("stage", {"kind": "paper"})])
+    want = concat([pipe.process(c).events for c in open_source(rec)])
+    want = want[np.lexsort((want.cls, want.t))]
+    got = concat(list(open_source(out)))
+    assert got.geometry == want.geometry and len(got) == len(want) > 1_000
+    for f in ("t", "x", "y", "p", "cls"):
+        np.testing.assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
+    assert 0 < int((got.cls != 0).sum()) < len(got)
