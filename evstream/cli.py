@@ -613,6 +613,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--roc", metavar="FILE.png", help="plot ROC curves")
     p.add_argument("--roc-condition", help="noise condition of the ROC plot, e.g. 100%% or 3Hz (default 100%%)")
     p.set_defaults(func=cmd_eval)
+
+    from . import cli_live  # publish, subscribe, router: live streams over Zenoh
+
+    cli_live.add_parsers(sub, _add_source_flags, _add_pipeline_flags, framer_options.add_framer_flags)
     return ap
 
 

@@ -1,0 +1,81 @@
+"""Opening Zenoh sessions the way evstream wants them: explicit endpoints, loopback by default.
+
+Zenoh's own defaults listen on every interface and scout by multicast; a session opened here listens
+and connects only where it is told (`tcp/127.0.0.1:7447` when nothing is said), multicast scouting
+stays off unless asked, and the transport refuses messages over `max_message_bytes` before
+allocating them. Shared by `sources.zenoh_sub`, `sinks.zenoh_pub` and `evstream router`.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+
+import zenoh
+
+__all__ = ["DEFAULT_ENDPOINT", "MODES", "check_endpoint", "config", "drain", "open_session"]
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+MODES = ("peer", "client", "router")
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s]+$")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """`proto/address:port` (e.g. tcp/127.0.0.1:7447); ValueError naming what is wrong otherwise."""
+    if not _ENDPOINT.match(endpoint):
+        raise ValueError(f"Zenoh endpoint {endpoint!r}: expected PROTO/ADDRESS:PORT, e.g. {DEFAULT_ENDPOINT}")
+    return endpoint
+
+
+def config(*, mode: str = "peer", listen=(), connect=(), multicast: bool = False,
+           max_message_bytes: int = 1 << 30) -> zenoh.Config:
+    """A Zenoh config with exactly these endpoints (none of Zenoh's all-interfaces defaults)."""
+    if mode not in MODES:
+        raise ValueError(f"Zenoh mode {mode!r}: choose from {', '.join(MODES)}")
+    listen = [check_endpoint(e) for e in listen]
+    connect = [check_endpoint(e) for e in connect]
+    c = zenoh.Config()
+    c.insert_json5("mode", json.dumps(mode))
+    c.insert_json5("listen/endpoints", json.dumps(listen))
+    c.insert_json5("connect/endpoints", json.dumps(connect))
+    c.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+    c.insert_json5("transport/link/rx/max_message_size", json.dumps(int(max_message_bytes)))
+    return c
+
+
+def open_session(*, mode: str | None = None, listen=(), connect=(), multicast: bool = False,
+                 max_message_bytes: int = 1 << 30) -> zenoh.Session:
+    """Open a session. With neither `listen` nor `connect`: a router listens on DEFAULT_ENDPOINT, anything
+    else connects to it. `mode` defaults to client when only connecting (all traffic through the router),
+    peer otherwise."""
+    listen, connect = list(listen), list(connect)
+    if mode is None:
+        mode = "client" if connect and not listen else "peer"
+    if not listen and not connect:
+        (listen if mode == "router" else connect).append(DEFAULT_ENDPOINT)
+    try:
+        return zenoh.open(config(mode=mode, listen=listen, connect=connect, multicast=multicast,
+                                 max_message_bytes=max_message_bytes))
+    except zenoh.ZError as e:
+        where = ", ".join([*(f"listen {x}" for x in listen), *(f"connect {x}" for x in connect)])
+        reason = str(e).split(" at /")[0].strip()  # drop the Rust source location
+        raise OSError(f"cannot open a Zenoh {mode} session ({where}): {reason}") from None
+
+
+def drain(session: zenoh.Session, timeout_s: float = 10.0) -> bool:
+    """Wait until the next hop (router or peer) has received everything this session queued.
+
+    `put` returns once a message is in the session's transmit queue, and closing a session discards
+    that queue. A query to the Zenoh admin space travels behind the data on the same priority, and the
+    hop answers only after taking in what came before it; so when the query completes, the data left.
+    True if it completed within `timeout_s`.
+    """
+    t0 = time.monotonic()
+    try:
+        for _ in session.get("@/**", timeout=timeout_s, congestion_control=zenoh.CongestionControl.BLOCK,
+                             priority=zenoh.Priority.DATA):
+            pass
+    except zenoh.ZError:
+        return False
+    return time.monotonic() - t0 < timeout_s
