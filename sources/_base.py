@@ -185,50 +185,36 @@ class FileSource:
             raise self.error("no sensor size known; pass geometry=(width, height)")
         check = Validator(self.geometry, self.path, self.timestamps)
         strict = check.policy is TimestampPolicy.ERROR
-        pending: list[Block] = []
-        n_pending = 0
+        queue = _Queue()
         offset = 0  # events emitted so far
         bin_start = None  # chunk_us: start of the current time bin
         for block in self._blocks():
             if not len(block):
                 continue
-            self._check_coords(block, offset + n_pending)
-            pending.append(block)
-            n_pending += len(block)
-            # small blocks (AEDAT4 packets) gather until a chunk's worth is there: one merge per chunk
-            if self.chunk_us is None:
-                if n_pending <= self.chunk_events:
-                    continue
-            elif (bin_start is not None and int(block.t[-1]) < bin_start + self.chunk_us
-                  and n_pending <= MAX_CHUNK_EVENTS):
-                continue
+            self._check_coords(block, offset + queue.n)
+            queue.push(block)
             while True:
-                buf = _merge(pending)
-                pending = [buf]
                 if self.chunk_us is None:
-                    if n_pending <= self.chunk_events:
+                    if queue.n <= self.chunk_events:
                         break
                     cut = self.chunk_events
                 else:
                     if bin_start is None:
-                        bin_start = int(buf.t[0])
-                    cut = _time_cut(buf.t, bin_start + self.chunk_us, MAX_CHUNK_EVENTS)
+                        bin_start = queue.t_at(0)
+                    cut = queue.time_cut(bin_start + self.chunk_us, MAX_CHUNK_EVENTS)
                     if cut < 0:
                         break
-                    bin_start = _next_bin(bin_start, int(buf.t[cut]), self.chunk_us)
-                head = _slice(buf, 0, cut)
-                pending = [_slice(buf, cut, n_pending)]
-                n_pending -= cut
-                chunk = self._emit(check, head, int(buf.t[cut]) if strict else None)
+                    bin_start = _next_bin(bin_start, queue.t_at(cut), self.chunk_us)
+                next_t = queue.t_at(cut) if strict else None
+                head = queue.take(cut)
                 offset += cut
-                yield chunk
+                yield self._emit(check, head, next_t)
         # the rest, without a following event to bound it
-        if n_pending:
-            buf = _merge(pending)
-            step = self.chunk_events if self.chunk_us is None else MAX_CHUNK_EVENTS
-            for a in range(0, n_pending, step):
-                b = min(a + step, n_pending)
-                yield self._emit(check, _slice(buf, a, b), int(buf.t[b]) if strict and b < n_pending else None)
+        step = self.chunk_events if self.chunk_us is None else MAX_CHUNK_EVENTS
+        while queue.n:
+            k = min(step, queue.n)
+            next_t = queue.t_at(k) if strict and k < queue.n else None
+            yield self._emit(check, queue.take(k), next_t)
         self.dropped, self.reordered = check.dropped, check.reordered
         if check.dropped:
             self.warn(f"{check.dropped} events dropped: their timestamps go back "
@@ -275,15 +261,60 @@ def _slice(b: Block, i: int, j: int) -> Block:
     return Block(b.t[i:j], b.x[i:j], b.y[i:j], b.p[i:j], b.byte_start, b.byte_end)
 
 
+class _Queue:
+    """Decoded blocks waiting to become chunks. Chunks inside one block are views; only a chunk that
+    straddles blocks is copied together."""
+
+    def __init__(self):
+        self.blocks: list[Block] = []
+        self.n = 0
+
+    def push(self, b: Block) -> None:
+        self.blocks.append(b)
+        self.n += len(b)
+
+    def t_at(self, i: int) -> int:
+        for b in self.blocks:
+            if i < len(b):
+                return int(b.t[i])
+            i -= len(b)
+        raise IndexError(i)
+
+    def take(self, k: int) -> Block:
+        parts = []
+        while k:
+            b = self.blocks[0]
+            if len(b) <= k:
+                parts.append(self.blocks.pop(0))
+                k -= len(b)
+                self.n -= len(b)
+            else:
+                parts.append(_slice(b, 0, k))
+                self.blocks[0] = _slice(b, k, len(b))
+                self.n -= k
+                k = 0
+        return _merge(parts)
+
+    def time_cut(self, boundary: int, max_events: int) -> int:
+        """First index ≥ 1 with t ≥ boundary (the chunk ends before it), else max_events if that
+        many are waiting, else -1."""
+        base = 0
+        for j, b in enumerate(self.blocks):
+            i = _first_at_or_after(b.t, boundary, 1 if j == 0 else 0)
+            if i >= 0:
+                return min(base + i, max_events)
+            base += len(b)
+            if base > max_events:
+                return max_events
+        return -1
+
+
 @numba.njit(cache=True, nogil=True)
-def _time_cut(t, boundary, max_events):
-    """First index with t >= boundary (the chunk ends before it), capped at max_events; -1 if none."""
-    n = min(len(t), max_events + 1)
-    for i in range(1, n):
+def _first_at_or_after(t, boundary, start):
+    """First index i ≥ start with t[i] ≥ boundary, else -1."""
+    for i in range(start, len(t)):
         if t[i] >= boundary:
             return i
-    if len(t) > max_events:
-        return max_events
     return -1
 
 

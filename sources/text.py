@@ -98,8 +98,11 @@ def _parse_kernel(buf, out):
             i += 1
             continue
         for col in range(4):
+            sep = i
             while i < n and (buf[i] == 32 or buf[i] == 9 or (col > 0 and buf[i] == 44)):
                 i += 1
+            if col > 0 and i == sep:  # numbers need a separator between them
+                return rows, start
             v, i, ok = _number(buf, i, n)
             if not ok:
                 return rows, start
