@@ -2,7 +2,8 @@
 (native file -> paper cascade -> EVT3 EventPackets -> zstd MCAP) at 346×260, on one core.
 
 Stream: the turntable scene (2 s) with 3 Hz/pixel background activity and 0.1 % hot pixels, saved as a
-native .npz and read back in the source's 50k-event chunks, as `evstream archive` does.
+native .npz (plain, and zipped as `evstream synth` writes it) and read back in the source's 50k-event
+chunks, as `evstream archive` does.
 """
 
 from __future__ import annotations
@@ -27,17 +28,18 @@ G = Geometry(346, 260)
 DURATION_US = 2_000_000
 
 
-def recording(folder: str) -> str:
-    path = os.path.join(folder, "turntable.npz")
+def recording(folder: str, compress: bool) -> str:
+    path = os.path.join(folder, f"turntable{'-zip' if compress else ''}.npz")
     sig = scene("turntable", G, duration_us=DURATION_US, seed=0)
     spec = NoiseSpec(ba_rate_hz=3.0, hot_pixels=G.n_pixels // 1000, hot_rate_hz=(500.0, 2000.0))
-    native.save(path, inject(sig, spec, seed=1, t_start_us=0, t_stop_us=DURATION_US))
+    native.save(path, inject(sig, spec, seed=1, t_start_us=0, t_stop_us=DURATION_US), compress=compress)
     return path
 
 
 def run() -> None:
     with tempfile.TemporaryDirectory() as folder:
-        src_path = recording(folder)
+        src_path = recording(folder, compress=False)
+        zip_path = recording(folder, compress=True)
         out = os.path.join(folder, "out.mcap")
         chunks = list(open_source(src_path))
         s = concat(chunks)
@@ -66,14 +68,16 @@ def run() -> None:
             report(f"MCAP sink alone, keep_noise={keep_noise}", eps, file_MB=f"{os.path.getsize(out) / 1e6:.1f}")
 
         # end to end, as `evstream archive --denoise paper` runs: read the file, clean, encode, write
-        for keep_noise, frames in ((False, False), (True, False), (True, True)):
-            def end_to_end(keep_noise=keep_noise, frames=frames):
+        for path, keep_noise, frames in ((zip_path, False, False), (src_path, False, False),
+                                         (src_path, True, False), (src_path, True, True)):
+            def end_to_end(path=path, keep_noise=keep_noise, frames=frames):
                 pipe = Pipeline([build("stage", {"kind": "paper"})],
                                 build("framer", {"kind": "fw"}) if frames else None)
-                pipe.run(open_source(src_path), [McapSink(out, keep_noise=keep_noise, frames=frames)])
+                pipe.run(open_source(path), [McapSink(out, keep_noise=keep_noise, frames=frames)])
 
             eps = events_per_s(end_to_end, n, repeat=3)
-            report(f"native -> paper -> MCAP, keep_noise={keep_noise}, frames={frames}", eps,
+            kind = "zipped" if path == zip_path else "plain"
+            report(f"native ({kind}) -> paper -> MCAP, noise={keep_noise:d}, frames={frames:d}", eps,
                    peak_alloc_MB=f"{peak_alloc_bytes(end_to_end) / 1e6:.1f}")
 
         def cascade_only():
@@ -82,6 +86,13 @@ def run() -> None:
                 stage(c)
 
         report("(for scale) paper cascade alone", events_per_s(cascade_only, n, repeat=3))
+        for path in (zip_path, src_path):
+            def read(path=path):
+                for _ in open_source(path):
+                    pass
+
+            report(f"(for scale) reading the native file, {'zipped' if path == zip_path else 'plain'}",
+                   events_per_s(read, n, repeat=3))
 
 
 if __name__ == "__main__":

@@ -206,6 +206,13 @@ def test_provenance_and_stats_metadata(tmp_path):
     assert prov["keep_noise"] is True and prov["packet_us"] == 10_000
     assert int(meta["evstream.stats"]["events_background"]) == int((s.cls == 1).sum())
     assert int(meta["evstream.stats"]["run_events_in"]) == len(s)
+    with open(path, "rb") as f:
+        chunk_indexes = make_reader(f).get_summary().chunk_indexes
+    assert chunk_indexes and {c.compression for c in chunk_indexes} == {"zstd"}
+    import mcap.writer
+    import zstandard
+
+    assert mcap.writer.zstandard is zstandard  # our level-1 compressor was swapped in only while closing chunks
 
 
 # -- other tools' files ---------------------------------------------------------------------------------------
