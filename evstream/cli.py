@@ -125,19 +125,26 @@ def cmd_info(args) -> int:
         "rate_hz": n / (duration * 1e-6) if duration > 0 else 0.0,
         "on_fraction": on / n if n else 0.0,
         "labels": {c.name.lower(): int(labels[c]) for c in NoiseClass} if has_labels and n else None,
+        "source": source.info() if hasattr(source, "info") else {},  # reader details, after the read
     }
     if args.json:
-        print(json.dumps(out))
+        print(json.dumps(out, default=str))
         return 0
     print(f"{out['path']}")
     print(f"  format     {out['format']}")
-    print(f"  geometry   {out['width']}x{out['height']}")
+    where = out["source"].get("geometry_from")
+    print(f"  geometry   {out['width']}x{out['height']}" + (f"  (from {where})" if where else ""))
     print(f"  events     {n:,}")
     print(f"  duration   {duration / 1e6:.6f} s  ({t_first} .. {t_last} µs)")
     print(f"  rate       {out['rate_hz'] / 1e3:,.1f} k events/s")
     print(f"  ON         {100 * out['on_fraction']:.1f} %")
     if out["labels"]:
         print("  labels     " + ", ".join(f"{k} {v:,}" for k, v in out["labels"].items()))
+    skipped = {k: v for k, v in out["source"].get("counters", {}).items() if v}
+    if out["source"].get("dropped"):
+        skipped["dropped (timestamps back)"] = out["source"]["dropped"]
+    if skipped:
+        print("  skipped    " + ", ".join(f"{k} {v:,}" for k, v in skipped.items()))
     return 0
 
 

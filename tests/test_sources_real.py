@@ -108,6 +108,7 @@ def test_cli_info_replay_convert_on_every_real_file(real_data, tmp_path, capsys)
         out = json.loads(capsys.readouterr().out)
         assert (out["format"], f"{out['width']}x{out['height']}", out["events"], out["duration_us"]) == (
             fmt, geom, n, span), name
+        assert out["source"]["format"] == fmt
         rrd = tmp_path / f"{name}.rrd"
         assert main(["replay", str(real_data / name), "--denoise", "none", "--save", str(rrd), "--json"]) == 0
         stats = json.loads(capsys.readouterr().out)
