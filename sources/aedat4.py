@@ -58,7 +58,7 @@ class Aedat4Source(FileSource):
     def _blocks(self) -> Iterator[Block]:
         skipped: dict[str, int] = {}
         n_packets = 0
-        batch = None  # event packets are small: copy them into one reused batch of records
+        batch = dtype = None  # event packets are small: copy their records into one reused batch
         fill = 0
         try:
             for packet in _aedat().Decoder(self.path):
@@ -68,16 +68,22 @@ class Aedat4Source(FileSource):
                     kind = "events" if ev is not None else next((k for k in packet if k != "stream_id"), "other")
                     skipped[kind] = skipped.get(kind, 0) + 1
                     continue
+                if batch is not None and ev.dtype != dtype:  # never seen, but a view must not lie
+                    if fill:
+                        yield _block(batch[:fill].view(dtype))
+                    batch, fill = None, 0
                 if batch is None:
-                    batch = np.empty(_BATCH_EVENTS, ev.dtype)
+                    dtype = ev.dtype
+                    batch = np.empty(_BATCH_EVENTS * dtype.itemsize, np.uint8)
+                raw = np.ascontiguousarray(ev).view(np.uint8).reshape(-1)  # a plain copy is fastest
                 i = 0
-                while i < len(ev):
-                    k = min(len(ev) - i, _BATCH_EVENTS - fill)
-                    batch[fill : fill + k] = ev[i : i + k]
+                while i < len(raw):
+                    k = min(len(raw) - i, len(batch) - fill)
+                    batch[fill : fill + k] = raw[i : i + k]
                     fill += k
                     i += k
-                    if fill == _BATCH_EVENTS:
-                        yield _block(batch[:fill])
+                    if fill == len(batch):
+                        yield _block(batch.view(dtype))
                         fill = 0
         except Exception as e:  # the Rust decoder's errors (truncated packet, bad LZ4 frame, ...)
             if n_packets and "fill whole buffer" in str(e):  # a recording cut short: keep what was read
@@ -87,7 +93,7 @@ class Aedat4Source(FileSource):
         finally:
             self.counters = {f"{k}_packets_skipped": v for k, v in skipped.items()}
         if fill:
-            yield _block(batch[:fill])
+            yield _block(batch[:fill].view(dtype))
 
 
 _BATCH_EVENTS = 1 << 16
