@@ -44,7 +44,7 @@ from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from mcap.writer import CompressionType, Writer
 
 from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
-from evstream.codecs.packets import ENCODINGS, to_packet
+from evstream.codecs.packets import ENCODINGS, PacketEncoder
 from evstream.events import N_CLASSES, EventChunk, EventError, Frame, Geometry, NoiseClass
 from evstream.pipeline import Batch, RunStats
 
@@ -173,7 +173,7 @@ class _EventTopic:
 
     def __init__(self, channel_id: int):
         self.channel_id = channel_id
-        self.seq = 0
+        self.encoder: PacketEncoder | None = None  # made when the sensor size is known
         self.parts: collections.deque = collections.deque()  # (t, x, y, p) views, in stream order
         self.n = 0
 
@@ -349,13 +349,14 @@ class McapSink:
                 self._write_packet(c, topic, *part)
 
     def _write_packet(self, c: NoiseClass, topic: _EventTopic, t, x, y, p) -> None:
-        g = self.geometry
-        packet = to_packet(t, x, y, p, width=g.width, height=g.height, encoding=self.encoding, seq=topic.seq,
-                           frame_id=self.camera)
+        if topic.encoder is None:
+            g = self.geometry
+            topic.encoder = PacketEncoder(width=g.width, height=g.height, encoding=self.encoding,
+                                          frame_id=self.camera)
+        packet = topic.encoder.encode(t, x, y, p)
         data = encode_packet(packet)
         self._writer.add_message(topic.channel_id, log_time=packet.stamp_ns, data=data,
-                                 publish_time=packet.stamp_ns, sequence=topic.seq & 0xFFFFFFFF)
-        topic.seq += 1
+                                 publish_time=packet.stamp_ns, sequence=packet.seq & 0xFFFFFFFF)
         self.packets += 1
         self.messages += 1
         self.events_written[c] += len(t)

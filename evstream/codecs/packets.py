@@ -5,10 +5,11 @@ Writing (`to_packet`), for both encodings: `time_base` = header stamp = the pack
 in ns (event_camera_codecs' encoders set time_base to the packet's start sensor time the same way).
 
 - `evt3`: the payload is the sensor's 24-bit µs clock as a camera sends it (event_camera_codecs' EVT3
-  encoder does the same): TIME_HIGH and TIME_LOW of the first event (t mod 2^24), then the events, with
-  the clock's wraps spelled 4095 -> 0 inside the packet. So a stateful decoder fed the packets in order
-  (event_camera_codecs, faery over the concatenated payloads, `Evt3Decoder`) follows the clock, and
-  each packet also decodes alone: t = E + decoded, with E = t0 − t0 mod 2^24 from `time_base`.
+  encoder writes the same words): a packet opens with a TIME_HIGH word where the previous packet of its
+  topic left the clock, steps forward to its first event (wraps spelled 4095 -> 0), then TIME_LOW,
+  ADDR_Y and the events. So a stateful decoder fed the packets in order (event_camera_codecs, faery over
+  the concatenated payloads, `Evt3Decoder`) follows the clock across any gap, and each packet also
+  decodes alone: its times shifted so the first event lands on `time_base`.
 - `mono`: dt = t − time_base in ns (uint32), so a mono packet spans at most 4.29 s.
 
 Reading (`PacketDecoder`): event_camera_msgs leaves `time_base` undefined for evt3, so packets from
@@ -24,45 +25,72 @@ import struct
 from . import evt3, mono
 from .event_packet import EventPacket, PacketError
 
-__all__ = ["ENCODINGS", "EVT3_EPOCH_US", "PacketDecoder", "evt3_sensor_clock", "to_packet"]
+__all__ = ["ENCODINGS", "EVT3_EPOCH_US", "PacketDecoder", "PacketEncoder", "evt3_sensor_clock", "to_packet"]
 
 ENCODINGS = ("evt3", "mono")
 EVT3_EPOCH_US = 1 << 24  # the EVT3 clock wraps every 2^24 µs ≈ 16.8 s
 _NS_PER_US = 1000
 
 
-def evt3_sensor_clock(t, x, y, p) -> bytes:
-    """EVT3 bytes of one packet on the 24-bit sensor clock: TIME_HIGH of t[0] mod 2^24 first, no steps from 0.
+def evt3_sensor_clock(t, x, y, p, from_time_high: int | None = None) -> bytes:
+    """EVT3 bytes of one packet on the 24-bit sensor clock, decodable alone.
 
-    Decoded alone this gives t − E (E = t[0] − t[0] mod 2^24). Built on `evt3.Evt3Encoder` by starting it
-    at the first event's time-high (state = [started, time-high, time-low, y]) and writing that TIME_HIGH.
+    The packet opens with a TIME_HIGH word: the clock's time-high where the previous packet of the stream
+    left it (`from_time_high`, absolute: t >> 12), or the first event's own when None; then TIME_HIGH steps
+    up to the first event (wraps spelled 4095 -> 0, as a camera sends them), TIME_LOW, ADDR_Y and the
+    events. Built on `evt3.Evt3Encoder`, started at that time-high (state = [started, time-high,
+    time-low, y]).
     """
     if len(t) == 0:
         return b""
     t0 = int(t[0])
     if t0 < 0:
         raise ValueError(f"evt3: event 0 has t={t0} µs; EVT3 needs t >= 0")
-    high = t0 >> 12
+    high = t0 >> 12 if from_time_high is None else int(from_time_high)
+    if high > t0 >> 12:
+        raise ValueError(f"evt3: the clock is at time-high {high}, past the first event (t={t0} µs)")
     enc = evt3.Evt3Encoder()
     enc.state[:] = (1, high, -1, -1)
     enc.last_t = t0
     return struct.pack("<H", 0x8000 | (high & 0xFFF)) + enc.encode(t, x, y, p)
 
 
+class PacketEncoder:
+    """Events -> EventPackets for one topic: `seq` counts from 0, time_base = stamp = first event time (ns).
+
+    EVT3 packets continue one sensor clock: each opens where the previous one left the clock and steps
+    forward, so a stateful decoder fed the packets in order never sees the clock jump (any gap, wraps
+    included), and each packet still decodes alone.
+    """
+
+    def __init__(self, *, width: int, height: int, encoding: str = "evt3", frame_id: str = ""):
+        if encoding not in ENCODINGS:
+            raise ValueError(f"unknown event encoding {encoding!r}; choose from {', '.join(ENCODINGS)}")
+        self.width, self.height, self.encoding, self.frame_id = width, height, encoding, frame_id
+        self.seq = 0
+        self._time_high: int | None = None  # where the last EVT3 packet left the clock
+
+    def encode(self, t, x, y, p) -> EventPacket:
+        if len(t) == 0:
+            raise ValueError("a packet needs at least one event")
+        t0_ns = int(t[0]) * _NS_PER_US
+        if self.encoding == "evt3":
+            payload = evt3_sensor_clock(t, x, y, p, self._time_high)
+            self._time_high = int(t[-1]) >> 12
+        else:
+            payload = mono.encode(t, x, y, p, t0_ns)
+        packet = EventPacket(events=payload, encoding=self.encoding, width=self.width, height=self.height,
+                             seq=self.seq, time_base=t0_ns, stamp_ns=t0_ns, frame_id=self.frame_id)
+        self.seq += 1
+        return packet
+
+
 def to_packet(t, x, y, p, *, width: int, height: int, encoding: str = "evt3", seq: int = 0,
               frame_id: str = "") -> EventPacket:
-    """One packet holding events (t µs non-decreasing, ≥ 0); time_base = stamp = t[0] in ns."""
-    if len(t) == 0:
-        raise ValueError("to_packet: a packet needs at least one event")
-    t0_ns = int(t[0]) * _NS_PER_US
-    if encoding == "evt3":
-        payload = evt3_sensor_clock(t, x, y, p)
-    elif encoding == "mono":
-        payload = mono.encode(t, x, y, p, t0_ns)
-    else:
-        raise ValueError(f"unknown event encoding {encoding!r}; choose from {', '.join(ENCODINGS)}")
-    return EventPacket(events=payload, encoding=encoding, width=width, height=height, seq=seq,
-                       time_base=t0_ns, stamp_ns=t0_ns, frame_id=frame_id)
+    """One packet on its own (the clock starts at its first event); time_base = stamp = t[0] in ns."""
+    enc = PacketEncoder(width=width, height=height, encoding=encoding, frame_id=frame_id)
+    enc.seq = seq
+    return enc.encode(t, x, y, p)
 
 
 class PacketDecoder:
@@ -86,8 +114,8 @@ class PacketDecoder:
             if self.absolute:
                 dec = evt3.Evt3Decoder()
                 t, x, y, p = dec.decode(packet.events)
-                epoch = (packet.time_base // _NS_PER_US) // EVT3_EPOCH_US * EVT3_EPOCH_US
-                t = t + epoch
+                if len(t):  # time_base is the first event's time: that places the packet's clock
+                    t = t + (packet.time_base // _NS_PER_US - int(t[0]))
                 counts = dec.counters
             else:
                 before = self._stream.counters
