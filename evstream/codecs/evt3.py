@@ -316,12 +316,11 @@ def _encode_kernel(t, x, y, p, out, state):
             cur_y = yi
         xi = np.int64(x[i])
         pi = np.int64(p[i])
-        # events of the same run (same t, y, p; x increasing) within the first 12 pixels
-        m = i + 1
-        while (m < n and t[m] == ti and m - i < _VECTOR_MIN_EVENTS and np.int64(x[m]) < xi + 12
-               and y[m] == y[i] and p[m] == p[i] and x[m] > x[m - 1]):
-            m += 1
-        if m - i >= _VECTOR_MIN_EVENTS:
+        # a vector pays from 3 events of one run (same t, y, p; x increasing) within 12 pixels;
+        # t of the event two ahead is the cheapest test that rules it out
+        if (i + 2 < n and t[i + 2] == ti and np.int64(x[i + 2]) < xi + 12 and t[i + 1] == ti
+                and y[i + 1] == y[i] and y[i + 2] == y[i] and p[i + 1] == p[i] and p[i + 2] == p[i]
+                and x[i + 1] > x[i] and x[i + 2] > x[i + 1]):
             out[k] = 0x3000 | (pi << 11) | xi
             k += 1
             base = xi
