@@ -12,7 +12,7 @@ import os
 from evstream.events import EventError
 
 from . import aedat2, aedat4, dat, hdf5, matlab, mcap_log, native, nmnist, numpy_files, prophesee_raw, text
-from ._base import EventWarning
+from ._base import EventWarning, as_geometry
 
 # Readers, most specific magic first; each module has probe(head, path) and open(path, **options).
 # N-MNIST binaries have no magic at all: they come last and need their extension.
@@ -32,6 +32,8 @@ def open_source(uri: str | os.PathLike, **options):
         head = f.read(4096)
     if not head:
         raise EventError(f"{path}: empty file")
+    if options.get("geometry") is not None:  # (width, height) or "WxH" work for every reader
+        options["geometry"] = as_geometry(options["geometry"])
     for fmt in FORMATS:
         if fmt.probe(head, path):
             return fmt.open(path, **options)
