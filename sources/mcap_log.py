@@ -92,12 +92,15 @@ def _reason(e: Exception) -> str:
 
 
 class McapLogSource:
-    """Replays EventPackets from an MCAP file in chunks of about `chunk_events` events."""
+    """Replays EventPackets from an MCAP file in chunks of about `chunk_events` events.
+
+    `timestamps` is the policy for times that go back (a camera's EVT3 may step back a little; the
+    default sorts within a chunk, as the RAW reader does); evstream's archives never go back."""
 
     format = FORMAT
 
     def __init__(self, path, topic: str | None = None, geometry: Geometry | None = None,
-                 timestamps: str = "error", chunk_events: int = DEFAULT_CHUNK_EVENTS):
+                 timestamps: str = "sort", chunk_events: int = DEFAULT_CHUNK_EVENTS):
         self.path = os.fspath(path)
         self.topic = topic
         self.timestamps = timestamps
