@@ -300,7 +300,8 @@ def cmd_archive(args) -> int:
                   "pipeline": pipeline.describe(), "command": sys.argv[1:] or None, "evstream": _version()}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
-                    frames=pipeline.framer is not None, points=args.points, packet_us=args.packet_us,
+                    frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
+                    packet_us=args.packet_us,
                     flush_s=args.flush_s, metadata=provenance, geometry=source.geometry)
     progress = Progress(total=None)
     with _StopOnSignal() as stop:
@@ -563,6 +564,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-noise", action="store_true",
                    help="also write the removed events, one topic per noise class (nothing is lost)")
     p.add_argument("--frames", action="store_true", help="write frames (foxglove.RawImage); --framer picks (fw)")
+    p.add_argument("--frame-format", choices=["foxglove", "ros2"], default="foxglove",
+                   help="frames as foxglove.RawImage (protobuf) or sensor_msgs/Image (an all-ROS 2 file)")
     p.add_argument("--points", action="store_true", help="write X-Y-T point clouds (foxglove.PointCloud)")
     p.add_argument("--camera", default="camera", help="topic prefix: /CAMERA/events ... (default camera)")
     p.add_argument("--encoding", choices=["evt3", "mono"], default="evt3", help="EventPacket encoding")

@@ -30,6 +30,7 @@ import contextlib
 import datetime
 import json
 import re
+import struct
 import time
 from typing import Any
 
@@ -168,6 +169,44 @@ def group_by_class(cls, t, x, y, p, n_classes: int):
     return (bounds, *out)
 
 
+FRAME_FORMATS = ("foxglove", "ros2")
+IMAGE_DATATYPE = "sensor_msgs/msg/Image"
+IMAGE_MSGDEF = """\
+std_msgs/Header header
+uint32 height
+uint32 width
+string encoding
+uint8 is_bigendian
+uint32 step
+uint8[] data
+================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+
+
+def ros2_image(img: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
+    """ROS 2 `sensor_msgs/msg/Image` in little-endian CDR: frames `ros2 bag play` can republish.
+
+    A gray (H, W) picture goes out as rgb8 (three equal channels; zstd takes the repeat back): Rerun's
+    loader shows a mono8 Image as a depth map, rgb8 as a picture."""
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    h, w, _ = img.shape
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    fid = frame_id.encode() + b"\x00"
+    head = struct.pack("<4siiI", b"\x00\x01\x00\x00", sec, nanosec, len(fid)) + fid
+    head += b"\x00" * (-(len(head) - 4) % 4) + struct.pack("<III", h, w, 5) + b"rgb8\x00"
+    head += b"\x00"  # is_bigendian
+    head += b"\x00" * (-(len(head) - 4) % 4) + struct.pack("<II", 3 * w, 3 * h * w)
+    return head + np.ascontiguousarray(img, np.uint8).tobytes()
+
+
 class _EventTopic:
     """Events of one class waiting for their grid cell to close; hands them out cell by cell."""
 
@@ -217,7 +256,8 @@ class McapSink:
     """
 
     def __init__(self, path, *, camera: str = "camera", encoding: str = "evt3", keep_noise: bool = False,
-                 frames: bool = True, points: bool = False, point_budget: int = 50_000,
+                 frames: bool = True, frame_format: str = "foxglove", points: bool = False,
+                 point_budget: int = 50_000,
                  packet_us: int = 10_000, max_packet_events: int = 200_000, chunk_bytes: int = 4 << 20,
                  flush_s: float = 1.0, zstd_level: int = 1, metadata: dict[str, Any] | None = None,
                  geometry: Geometry | None = None):
@@ -235,7 +275,10 @@ class McapSink:
         self.camera = camera
         self.encoding = encoding
         self.keep_noise = keep_noise
+        if frame_format not in FRAME_FORMATS:
+            raise ValueError(f"unknown frame format {frame_format!r}; choose from {', '.join(FRAME_FORMATS)}")
         self.frames = frames
+        self.frame_format = frame_format
         self.points = points
         self.point_budget = int(point_budget)
         self.packet_us = int(packet_us)
@@ -255,7 +298,8 @@ class McapSink:
         self._closed = False
         self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._file, chunk_size=_NEVER, compression=CompressionType.ZSTD)
-        profile = "" if (frames or points) else "ros2"  # "ros2": every channel is ROS 2 CDR
+        ros2_only = not points and (not frames or frame_format == "ros2")
+        profile = "ros2" if ros2_only else ""  # "ros2": every channel is ROS 2 CDR
         self._writer.start(profile=profile, library="evstream")
         self._register(metadata or {})
         self._file.flush()
@@ -271,7 +315,10 @@ class McapSink:
                     META_PACKET_US: str(self.packet_us)}
             cid = w.register_channel(self.topics[CLASS_NAMES[c]], "cdr", packet_schema, meta)
             self._event_topics[c] = _EventTopic(cid)
-        if self.frames:
+        if self.frames and self.frame_format == "ros2":
+            sid = w.register_schema(IMAGE_DATATYPE, "ros2msg", IMAGE_MSGDEF.encode())
+            self._frames_channel = w.register_channel(self.topics["frames"], "cdr", sid)
+        elif self.frames:
             sid = w.register_schema("foxglove.RawImage", "protobuf", _file_descriptor_set(RawImage))
             self._frames_channel = w.register_channel(self.topics["frames"], "protobuf", sid)
         if self.points:
@@ -365,6 +412,14 @@ class McapSink:
     def _write_frame(self, frame: Frame) -> None:
         img = render_mono8(frame)
         t_ns = int(frame.t_end) * 1000
+        if self.frame_format == "ros2":
+            data = ros2_image(img, t_ns, self.camera)
+            self._writer.add_message(self._frames_channel, log_time=t_ns, data=data, publish_time=t_ns,
+                                     sequence=self.frames_written & 0xFFFFFFFF)
+            self.frames_written += 1
+            self.messages += 1
+            self._pending_bytes += len(data)
+            return
         msg = RawImage(frame_id=self.camera, width=img.shape[1], height=img.shape[0], encoding="mono8",
                        step=img.shape[1], data=img.tobytes())
         msg.timestamp.seconds, msg.timestamp.nanos = divmod(t_ns, 1_000_000_000)

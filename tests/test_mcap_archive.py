@@ -168,11 +168,13 @@ def _frames(n=4, geometry=G):
     return out
 
 
-def test_rerun_mcap_loader_shows_the_frames(tmp_path):
+@pytest.mark.parametrize("frame_format", ["foxglove", "ros2"])
+def test_rerun_mcap_loader_shows_the_frames(tmp_path, frame_format):
     frames = _frames()
     s = classified(6, 500)
     path = tmp_path / "f.mcap"
-    sink = McapSink(path, frames=True, points=True)
+    points_on = frame_format == "foxglove"
+    sink = McapSink(path, frames=True, frame_format=frame_format, points=points_on)
     stats = RunStats()
     sink.write(Batch(s, frames[:2], stats))
     sink.write(Batch(EventChunk.empty(G, t_end=s.t_end, with_cls=True), frames[2:], stats))
@@ -192,8 +194,25 @@ def test_rerun_mcap_loader_shows_the_frames(tmp_path):
             points += sum(len(r) for r in rb.column(rb.schema.names.index("Points3D:positions")).to_pylist() if r)
     assert len(images) == len(frames)
     for buf, frame in zip(images, frames):
-        np.testing.assert_array_equal(np.asarray(buf[0], np.uint8).reshape(G.height, G.width), render_mono8(frame))
-    assert points == len(s)
+        pixels = np.asarray(buf[0], np.uint8).reshape(G.height, G.width, -1)  # mono8, or rgb8 for ros2
+        for c in range(pixels.shape[2]):
+            np.testing.assert_array_equal(pixels[:, :, c], render_mono8(frame))
+    assert points == (len(s) if points_on else 0)
+    with open(path, "rb") as f:  # frames as sensor_msgs/Image keep the whole file ROS 2 (the mcap profile says so)
+        assert make_reader(f).get_header().profile == ("ros2" if frame_format == "ros2" else "")
+
+
+def test_ros2_image_bytes_match_mcap_ros2():
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    from sinks.mcap_sink import IMAGE_DATATYPE, IMAGE_MSGDEF, ros2_image
+
+    img = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    rgb = np.repeat(img[:, :, None], 3, axis=2)
+    want = serialize_dynamic(IMAGE_DATATYPE, IMAGE_MSGDEF)[IMAGE_DATATYPE](
+        {"header": {"stamp": {"sec": 5, "nanosec": 123456789}, "frame_id": "cam"}, "height": 3, "width": 4,
+         "encoding": "rgb8", "is_bigendian": 0, "step": 12, "data": rgb.tobytes()})
+    assert ros2_image(img, 5_123_456_789, "cam") == want
 
 
 def test_provenance_and_stats_metadata(tmp_path):
