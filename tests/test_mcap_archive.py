@@ -99,6 +99,26 @@ def test_events_and_classes_round_trip(tmp_path_factory, seed, n, packet_us, max
     assert not src.truncated
 
 
+def _packets_in_file_order(path):
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        return [(channel.topic, msg.log_time, bytes(msg.data))
+                for _, channel, msg in reader.iter_messages(log_time_order=False)]
+
+
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 400))
+def test_archive_content_does_not_depend_on_chunking(tmp_path_factory, seed, n):
+    s = classified(seed, n)
+    folder = tmp_path_factory.mktemp("ci")
+    archive(folder / "one.mcap", [s], keep_noise=True, packet_us=500, max_packet_events=7)
+    archive(folder / "single.mcap", [s[i : i + 1] for i in range(n)], keep_noise=True, packet_us=500,
+            max_packet_events=7)
+    archive(folder / "random.mcap", split(s, random_bounds(seed, n)), keep_noise=True, packet_us=500,
+            max_packet_events=7)
+    one = _packets_in_file_order(folder / "one.mcap")
+    assert one == _packets_in_file_order(folder / "single.mcap") == _packets_in_file_order(folder / "random.mcap")
+
+
 def test_signal_only_archive_keeps_stream_order_and_drops_nothing_else(tmp_path):
     s = classified(3, 5000)
     sink = archive(tmp_path / "a.mcap", split(s, random_bounds(1, len(s))))
