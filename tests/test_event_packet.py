@@ -208,3 +208,21 @@ def test_unknown_encoding_and_unknown_words():
     t, x, y, p = dec.decode(junk)  # 0xD and 0x9 word types are unknown: skipped and counted
     assert t.tolist() == [5, 9] and x.tolist() == [1, 2]
     assert dec.counters["unknown"] == 2
+
+
+def test_unix_time_packets_stay_small_in_memory():
+    """AEDAT4 stamps events in Unix µs (~1.7e15): a packet must not size its buffers by that."""
+    import tracemalloc
+
+    t = np.arange(1000, dtype=np.int64) * 7 + 1_700_000_000_000_000
+    z = np.zeros(1000, np.uint16)
+    enc = packets.PacketEncoder(width=4, height=4)
+    enc.encode(t, z, z, z.astype(np.uint8))  # compile
+    tracemalloc.start()
+    try:
+        pk = enc.encode(t + 10**6, z, z, z.astype(np.uint8))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1_000_000
+    np.testing.assert_array_equal(packets.PacketDecoder(absolute=True).decode(pk)[0], t + 10**6)

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import struct
 
+import numpy as np
+
 from . import evt3, mono
 from .event_packet import EventPacket, PacketError
 
@@ -49,9 +51,13 @@ def evt3_sensor_clock(t, x, y, p, from_time_high: int | None = None) -> bytes:
     high = t0 >> 12 if from_time_high is None else int(from_time_high)
     if high > t0 >> 12:
         raise ValueError(f"evt3: the clock is at time-high {high}, past the first event (t={t0} µs)")
+    # The words carry t mod 2^24 and steps forward only, so they are the same for t - E, E a whole number of
+    # 24-bit epochs: work near zero (the encoder sizes its output by the largest timestamp).
+    epoch_high = high >> 12 << 12
+    t = np.asarray(t, np.int64) - (epoch_high << 12)
     enc = evt3.Evt3Encoder()
-    enc.state[:] = (1, high, -1, -1)
-    enc.last_t = t0
+    enc.state[:] = (1, high - epoch_high, -1, -1)
+    enc.last_t = t0 - (epoch_high << 12)
     return struct.pack("<H", 0x8000 | (high & 0xFFF)) + enc.encode(t, x, y, p)
 
 
