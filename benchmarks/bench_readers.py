@@ -94,6 +94,13 @@ def codecs(n: int = 3_000_000) -> None:
         ts = np.maximum.accumulate(t)
         report("evt3 codec encode (real Gen4.1)", events_per_s(lambda: evt3.encode(ts, x, y, p), len(t), repeat=10))
 
+        def streaming():
+            enc = evt3.Evt3Encoder()
+            for i in range(0, len(ts), 20_000):
+                enc.encode(ts[i : i + 20_000], x[i : i + 20_000], y[i : i + 20_000], p[i : i + 20_000])
+
+        report("evt3 Evt3Encoder, 20k-event chunks (real)", events_per_s(streaming, len(t), repeat=10))
+
 
 def formats(n: int = 2_000_000) -> None:
     g = Geometry(1280, 720)

@@ -361,6 +361,7 @@ class Evt3Encoder:
         self.state = np.array([0, 0, -1, -1], np.int64)
         self.last_t = 0
         self.events_in = 0
+        self._scratch = np.empty(0, np.uint16)  # reused between calls: no fresh pages per chunk
 
     def encode(self, t, x, y, p) -> bytes:
         t = np.ascontiguousarray(t, np.int64)
@@ -387,7 +388,9 @@ class Evt3Encoder:
                 "clock, 5 words each): subtract a time origin first (RAW writers keep it in the header)")
         # room: 4 words per event at most, plus TIME_HIGH steps over long gaps (bounded by the span)
         ramp = 5 * (wraps + 1) + int((t[-1] >> 12) - (self.last_t >> 12)) // _MAX_HIGH_STEP + 2
-        out = np.empty(4 * n + ramp, np.uint16)
+        if len(self._scratch) < 4 * n + ramp:
+            self._scratch = np.empty(4 * n + ramp, np.uint16)
+        out = self._scratch
         k = _encode_kernel(t, x, y, p, out, self.state)
         self.last_t = int(t[-1])
         self.events_in += n
