@@ -427,3 +427,27 @@ def to_events(source: FileSource, t, x, y, p, time_unit: str, byte_start: int = 
     p = np.asarray(p)
     p8 = p.astype(np.uint8) if p.dtype == np.bool_ else (p > 0).astype(np.uint8)
     return Block(t64, cols[0], cols[1], p8, byte_start, byte_end, record_bytes)
+
+
+def guess_columns(sample: np.ndarray, default: str = "txyp") -> str:
+    """Column order of an N×4 event table from its first rows: t is the one non-decreasing column
+    (the non-integer one if several are), p the one with values in {-1, 0, 1}, x and y the other two
+    in file order. Falls back to `default` when that does not single them out."""
+    a = np.asarray(sample, np.float64)
+    if a.ndim != 2 or a.shape[1] != 4 or len(a) < 2:
+        return default
+    rising = [j for j in range(4) if np.all(np.diff(a[:, j]) >= 0) and a[-1, j] > a[0, j]]
+    if len(rising) > 1:
+        fractional = [j for j in rising if np.any(a[:, j] != np.floor(a[:, j]))]
+        rising = fractional if len(fractional) == 1 else []
+    if len(rising) != 1:
+        return default
+    jt = rising[0]
+    binary = [j for j in range(4) if j != jt and np.isin(a[:, j], (-1, 0, 1)).all()]
+    if not binary:
+        return default
+    jp = binary[-1]
+    rest = [j for j in range(4) if j not in (jt, jp)]
+    cols = [""] * 4
+    cols[jt], cols[jp], cols[rest[0]], cols[rest[1]] = "t", "p", "x", "y"
+    return "".join(cols)

@@ -3,7 +3,9 @@
 - `/events/{t,x,y,p}` datasets (and aliases: ts/xs/ys/ps, timestamp/polarity, ...), struct of arrays;
 - the same datasets at the root;
 - `/events` (or `/CD/events`, Prophesee's) as one compound dataset with t/x/y/p fields;
-- `/events` as an N×4 array (`columns=`, default 'txyp').
+- `/events` as an N×4 array (column order guessed from the first rows; `columns=` overrides);
+- a group or dataset called `events` deeper down (MVSEC's `/davis/left/events`, x y t p);
+- a `t_offset` dataset or attribute (DSEC) is added to the timestamps.
 
 Sensor size from `width`/`height` (or `sensor_size`, `sensor_resolution`) attributes on the file, the
 group or the dataset, else fitted to the events (one pass). Integer timestamps are µs, floating ones
@@ -19,7 +21,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_time_unit, to_events
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
 
 NAME = "HDF5 (/events/{t,x,y,p} and variants)"
 FORMAT = "hdf5"
@@ -44,7 +46,7 @@ class Hdf5Source(FileSource):
 
     format = FORMAT
 
-    def __init__(self, path, columns: str = "txyp", time_unit: str | None = None, **options):
+    def __init__(self, path, columns: str | None = None, time_unit: str | None = None, **options):
         super().__init__(path, **options)
         h5py = _h5py()
         try:
@@ -58,6 +60,7 @@ class Hdf5Source(FileSource):
         except _H5_ERRORS as e:  # h5py reports corruption as any of these
             raise self.error(f"unreadable HDF5 file: {type(e).__name__}: {e}") from None
         self.time_unit = time_unit or (unit_attr.replace("µs", "us") if unit_attr else guess_time_unit(t))
+        self.t_offset_us = self._t_offset(attrs_from)
         for obj in attrs_from:
             try:
                 g = _attr_geometry(obj.attrs)
@@ -72,17 +75,21 @@ class Hdf5Source(FileSource):
                 if len(b):
                     mx, my = max(mx, int(b.x.max())), max(my, int(b.y.max()))
             self.set_geometry(fit_geometry(mx, my), "fitted to the events (no size attributes)")
-        self.details = {"layout": self._layout, "events": self.n_events, "time_unit": self.time_unit}
+        self.details = {"layout": self._layout, "events": self.n_events, "time_unit": self.time_unit,
+                        "t_offset_us": self.t_offset_us}
 
     def _find(self, f, columns):
         h5py = _h5py()
-        for name in ("events", "CD/events", "cd/events"):
+        deeper = []
+        f.visit(lambda name: deeper.append(name) if name.lower().rsplit("/", 1)[-1] == "events"
+                and len(deeper) < 16 else None)
+        for name in ("events", "CD/events", "cd/events", *deeper):
             obj = f.get(name)
             if isinstance(obj, h5py.Group):
                 fields = find_fields([k for k, v in obj.items() if isinstance(v, h5py.Dataset)])
                 if fields:
                     self._set({k: obj[v] for k, v in fields.items()})
-                    return f"/{name}/{{t,x,y,p}}", obj, [obj, f]
+                    return f"/{name}/{{t,x,y,p}}", obj, [obj, obj.parent, f]
             elif isinstance(obj, h5py.Dataset):
                 if obj.dtype.names:
                     fields = find_fields(obj.dtype.names)
@@ -93,14 +100,28 @@ class Hdf5Source(FileSource):
                 if obj.ndim == 2 and 4 in obj.shape:
                     if obj.shape[1] != 4:
                         raise self.error(f"dataset /{name} is 4×N; only N×4 is read")
+                    columns = columns or guess_columns(obj[:1000])
                     self._set({k: (obj, i) for i, k in enumerate(columns)})
-                    return f"/{name} (N×4)", obj, [obj, f]
+                    return f"/{name} (N×4, {columns})", obj, [obj, obj.parent, f]
         fields = find_fields([k for k, v in f.items() if isinstance(v, h5py.Dataset)])
         if fields:
             self._set({k: f[v] for k, v in fields.items()})
             return "/{t,x,y,p}", f, [f]
         raise self.error(f"no event datasets found (looked for /events/{{t,x,y,p}}, /events, /CD/events, "
                          f"/{{t,x,y,p}}); the file has {list(f.keys())}")
+
+    def _t_offset(self, attrs_from) -> int:
+        """DSEC keeps event time relative to a `t_offset` (µs) dataset beside the events."""
+        try:
+            ds = self._file.get("t_offset")
+            if ds is not None and ds.shape in ((), (1,)):
+                return int(np.asarray(ds[()]).ravel()[0])
+            for obj in attrs_from:
+                if "t_offset" in obj.attrs:
+                    return int(np.asarray(obj.attrs["t_offset"]).ravel()[0])
+        except (*_H5_ERRORS, AttributeError):
+            return 0
+        return 0
 
     def _set(self, cols: dict) -> None:
         self._cols = cols
@@ -125,7 +146,10 @@ class Hdf5Source(FileSource):
         step = max(1, self.block_bytes // 16)
         for a in range(0, self.n_events, step):
             b = min(a + step, self.n_events)
-            yield to_events(self, *(self._col(k, a, b) for k in "txyp"), self.time_unit)
+            block = to_events(self, *(self._col(k, a, b) for k in "txyp"), self.time_unit)
+            if self.t_offset_us:
+                block.t += self.t_offset_us
+            yield block
 
 
 def _attr_geometry(attrs) -> Geometry | None:

@@ -2,7 +2,7 @@
 zlib-compressed or not), so scipy is not needed.
 
 Looked for: a numeric N×4 (or 4×N) matrix named `events` (else the only such matrix) with columns
-`x, y, p, t` (the ETH lifetime data's layout; `columns=` for others), or separate vectors named
+guessed from the first rows (`x, y, p, t` in the ETH lifetime data; `columns=` overrides), or separate vectors named
 t/ts, x, y, p/pol. p as ±1 or 0/1; t in µs (integers) or seconds (floats; `time_unit=` overrides).
 The whole matrix is loaded (MAT stores it column by column), so memory grows with the file: these are
 small dataset files. Sensor size from `width`/`height` scalars, else fitted to the events.
@@ -20,7 +20,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_time_unit, to_events
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
 
 NAME = "MATLAB .mat (level 5)"
 FORMAT = "mat"
@@ -133,9 +133,9 @@ class MatSource(FileSource):
 
     format = FORMAT
 
-    def __init__(self, path, columns: str = "xypt", time_unit: str | None = None, **options):
+    def __init__(self, path, columns: str | None = None, time_unit: str | None = None, **options):
         super().__init__(path, **options)
-        if sorted(columns) != sorted("txyp"):
+        if columns is not None and sorted(columns) != sorted("txyp"):
             raise ValueError(f"columns {columns!r}: a permutation of 'txyp'")
         variables = read_variables(self.path)
         cols, self.variable = self._pick(variables, columns)
@@ -149,8 +149,8 @@ class MatSource(FileSource):
             mx = int(cols["x"].max()) if self.n_events else 0
             my = int(cols["y"].max()) if self.n_events else 0
             self.set_geometry(fit_geometry(mx, my), "fitted to the events (the file has no size)")
-        self.details = {"variable": self.variable, "columns": columns, "time_unit": self.time_unit,
-                        "events": self.n_events}
+        self.details = {"variable": self.variable, "columns": getattr(self, "columns", None),
+                        "time_unit": self.time_unit, "events": self.n_events}
 
     def _pick(self, v: dict, columns: str):
         vectors = {k: a.ravel() for k, a in v.items() if a.ndim <= 2 and min(a.shape or (1,)) == 1}
@@ -164,6 +164,8 @@ class MatSource(FileSource):
                              f"numeric variables: { {k: a.shape for k, a in v.items()} }")
         a = tables[name]
         rows = a if a.shape[1] == 4 else a.T
+        columns = columns or guess_columns(rows[:1000], "xypt")
+        self.columns = columns
         return {k: np.ascontiguousarray(rows[:, i]) for i, k in enumerate(columns)}, name
 
     def _blocks(self) -> Iterator[Block]:

@@ -1,7 +1,8 @@
 """NumPy files that are not evstream's native `.npz`: a `.npy` structured array (fields t/x/y/p or
-their common aliases), a `.npy` N×4 array (`columns=`, default 'txyp'), or an `.npz` holding t, x, y,
-p arrays (a struct of arrays) or one structured array. `.npy` files are memory-mapped, so replay runs at
-constant memory; `.npz` members are loaded one at a time. Never unpickled (`allow_pickle=False`).
+their common aliases), a `.npy` N×4 array (column order guessed from the first rows, see
+`guess_columns`; `columns=` overrides), or an `.npz` holding t, x, y, p arrays (a struct of arrays)
+or one structured array. `.npy` files are memory-mapped, so replay runs at constant memory; `.npz`
+members are loaded one at a time. Never unpickled (`allow_pickle=False`).
 
 Integer timestamps are µs, floating ones seconds (`time_unit=` overrides). Sensor size from
 `width`/`height` (or `sensor_size`) members, else fitted to the events (one pass).
@@ -17,7 +18,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_time_unit, to_events
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
 
 NAME = "NumPy .npy / .npz (structured or struct of arrays)"
 FORMAT = "npy"
@@ -38,7 +39,7 @@ def probe(head: bytes, path: str) -> bool:
 class NumpySource(FileSource):
     """Replays a .npy/.npz event file; timestamps must rise (policy 'error' by default)."""
 
-    def __init__(self, path, columns: str = "txyp", time_unit: str | None = None, **options):
+    def __init__(self, path, columns: str | None = None, time_unit: str | None = None, **options):
         super().__init__(path, **options)
         self._npz = None
         try:
@@ -76,9 +77,11 @@ class NumpySource(FileSource):
                 raise self.error(f"structured array lacks t/x/y/p fields; has {list(a.dtype.names)}")
             return {k: a[v] for k, v in f.items()}
         if a.ndim == 2 and 4 in a.shape:
+            rows = a if a.shape[1] == 4 else a.T
+            if columns is None:
+                columns = guess_columns(rows[:1000])
             if sorted(columns) != sorted("txyp"):
                 raise ValueError(f"columns {columns!r}: a permutation of 'txyp'")
-            rows = a if a.shape[1] == 4 else a.T
             return {k: rows[:, i] for i, k in enumerate(columns)}
         raise self.error(f"array of shape {a.shape} and dtype {a.dtype} is not an event list "
                          "(expected a structured array with t, x, y, p or an N×4 array)")

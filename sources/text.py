@@ -1,9 +1,10 @@
 """Text files: one event per line, whitespace-separated numbers (the Event Camera Dataset's
-`t x y p`, t in seconds). Read in blocks at constant memory.
+`t x y p`, t in seconds; other column orders are recognised). Read in blocks at constant memory.
 
 Detected: `#`/`%` comment lines; an optional first line of two integers (`width height`); the time
 unit (a decimal point in the time column means seconds, else µs; `time_unit=` overrides); polarity
-as 0/1 or -1/+1. `columns=` gives another column order (e.g. 'xytp'). Without a size line, files up
+as 0/1 or -1/+1; the column order from the first lines (the rising column is t, the one of ±1/0 is
+p, x and y in that order; `columns=`, e.g. 'xytp', overrides). Without a size line, files up
 to 256 MB are scanned for the sensor size (smallest known sensor that holds the events).
 """
 
@@ -18,7 +19,7 @@ import numpy as np
 
 from evstream.events import Geometry
 
-from ._base import Block, FileSource, fit_geometry, to_events
+from ._base import Block, FileSource, fit_geometry, guess_columns, to_events
 
 NAME = "text (t x y p per line)"
 FORMAT = "text"
@@ -140,11 +141,10 @@ class TextSource(FileSource):
 
     format = FORMAT
 
-    def __init__(self, path, columns: str = "txyp", time_unit: str | None = None, **options):
+    def __init__(self, path, columns: str | None = None, time_unit: str | None = None, **options):
         super().__init__(path, **options)
-        if sorted(columns) != sorted("txyp"):
+        if columns is not None and sorted(columns) != sorted("txyp"):
             raise ValueError(f"columns {columns!r}: a permutation of 'txyp'")
-        self.columns = columns
         with builtins.open(self.path, "rb") as f:
             head = f.read(1 << 16)
         lines = _data_lines(head + (b"\n" if len(head) < 1 << 16 else b""))
@@ -158,6 +158,11 @@ class TextSource(FileSource):
             lines = lines[1:]
         else:
             self._skip_first_data_line = False
+        if columns is None:  # from the first lines: the rising column is t, the ±1/0 one p
+            sample = np.empty((len(lines), 4))
+            rows, _ = _parse_kernel(np.frombuffer(b"\n".join(lines[:1000]) + b"\n", np.uint8), sample)
+            columns = guess_columns(sample[:rows], "txyp")
+        self.columns = columns
         tcol = columns.index("t")
         if time_unit is None:
             time_unit = "s" if lines and b"." in lines[0].split()[tcol] else "us"

@@ -321,3 +321,34 @@ def test_text_kernel_flags_malformed_lines_like_python(s):
     assert bad == first_bad
     assert rows == len(good)
     np.testing.assert_allclose(out[:rows], np.array(good).reshape(-1, 4), rtol=1e-14, atol=1e-290)
+
+
+# -- column orders and HDF5 variants ------------------------------------------------------------------
+@pytest.mark.parametrize("order", ["txyp", "xytp", "xypt", "ptxy"])
+def test_column_order_is_recognised(tmp_path, order):
+    s = stream(1000)
+    cols = {"t": s.t / 1e6, "x": s.x, "y": s.y, "p": s.p.astype(int) * 2 - 1}
+    table = np.stack([cols[k] for k in order], axis=1)
+    np.save(tmp_path / "a.npy", table)
+    np.savetxt(tmp_path / "a.txt", table, fmt=["%.6f" if k == "t" else "%d" for k in order])
+    write_mat(tmp_path / "a.mat", "events", np.stack([cols[k] if k != "t" else s.t for k in order], axis=1),
+              compress=False)
+    for name in ("a.npy", "a.txt", "a.mat"):
+        src = open_source(tmp_path / name)
+        same(concat(list(src)), s)
+
+
+def test_hdf5_mvsec_and_dsec_layouts(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    s = stream(2000, g=Geometry(346, 260))
+    with h5py.File(tmp_path / "mvsec.h5", "w") as f:  # /davis/left/events: x, y, t (s), p (±1)
+        f["davis/left/events"] = np.stack([s.x, s.y, s.t / 1e6 + 1500.0, s.p * 2.0 - 1], axis=1)
+    src = open_source(tmp_path / "mvsec.h5")
+    ev = concat(list(src))
+    np.testing.assert_array_equal(ev.t, s.t + 1_500_000_000)
+    same(ev.replace(t=ev.t - 1_500_000_000), s)
+    with h5py.File(tmp_path / "dsec.h5", "w") as f:  # /events/{t,x,y,p} relative to /t_offset
+        for k in "txyp":
+            f[f"events/{k}"] = getattr(s, k)
+        f["t_offset"] = np.int64(47_000_000)
+    same(concat(list(open_source(tmp_path / "dsec.h5"))), s.replace(t=s.t + 47_000_000))
