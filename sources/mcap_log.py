@@ -244,7 +244,9 @@ class _Merger:
         self.cell_parts: list = []  # (t, x, y, p, cls) of the cell being read
         self.out: list = []  # released parts waiting to fill a chunk
         self.n_out = 0
-        self.with_cls = source.archive and len(source._selected or {}) > 1
+        classes = set((source._selected or {}).values())
+        # an archive's classes come back in `cls` (a lone noise topic too); a lone signal topic has none
+        self.with_cls = source.archive and classes != {NoiseClass.SIGNAL}
 
     def add(self, t, x, y, p, cls, cell_us: int) -> Iterator[EventChunk]:
         if not len(t):

@@ -119,6 +119,14 @@ def test_archive_content_does_not_depend_on_chunking(tmp_path_factory, seed, n):
     assert one == _packets_in_file_order(folder / "single.mcap") == _packets_in_file_order(folder / "random.mcap")
 
 
+def test_one_noise_topic_reads_back_with_its_class(tmp_path):
+    s = classified(12, 3000)
+    archive(tmp_path / "a.mcap", [s], keep_noise=True)
+    got = concat(list(open_source(tmp_path / "a.mcap", topic="/camera/events/noise/hot_pixel")))
+    assert_same(got, s[s.cls == 2])
+    assert set(got.cls.tolist()) == {2}
+
+
 def test_signal_only_archive_keeps_stream_order_and_drops_nothing_else(tmp_path):
     s = classified(3, 5000)
     sink = archive(tmp_path / "a.mcap", split(s, random_bounds(1, len(s))))
