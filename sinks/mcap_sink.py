@@ -455,6 +455,12 @@ class McapSink:
         if self._pending_bytes >= self.chunk_bytes or (self._pending_bytes and now - self._last_flush >= self.flush_s):
             self.flush()
 
+    def tick(self) -> None:
+        """Close the chunk in progress if `flush_s` has passed: for live sources, call it when no batch comes
+        (the sink is not thread-safe: call it from the thread that writes)."""
+        if not self._closed:
+            self._maybe_flush()
+
     def flush(self) -> None:
         """Close the chunk in progress and hand everything written so far to the OS."""
         with _zstd_level(self._zstd):

@@ -372,3 +372,21 @@ def test_sink_refuses_bad_settings(tmp_path):
         with pytest.raises(ValueError):
             McapSink(tmp_path / "x.mcap", **kwargs)
     assert NoiseClass.HOT_PIXEL == 2
+
+
+def test_tick_closes_the_chunk_when_the_stream_goes_quiet(tmp_path):
+    import time
+
+    s = classified(13, 2000)
+    path = tmp_path / "live.mcap"
+    sink = McapSink(path, frames=False, flush_s=0.05)
+    stats = RunStats()
+    sink.write(Batch(s, [], stats))  # cells closed, packets in the chunk in progress
+    sink._last_flush = time.monotonic()
+    sink.write(Batch(EventChunk.empty(G, t_end=s.t_end + 10**6, with_cls=True), [], stats))
+    before = path.stat().st_size
+    time.sleep(0.06)
+    sink.tick()  # nothing new came, but the chunk is due: it goes to disk
+    assert path.stat().st_size > before
+    assert sum(1 for _ in mcap_log._records(str(path), mcap_log._Scan())) > 0
+    sink.close(stats)
