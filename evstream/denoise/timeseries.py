@@ -96,8 +96,7 @@ def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bin
                 score = dc - mean
             else:
                 score = dc / mean if mean > 0 else np.inf
-        if hot:
-            codes[i] = noise_code
+        codes[i] = noise_code * hot
         if want_score:
             out_score[i] = score
 
