@@ -62,10 +62,17 @@ def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bin
     window = (np.uint64(1) << np.uint64(n_bins)) - np.uint64(1) if n_bins < 64 else ~np.uint64(0)
     L = 2 * radius + 1
     lam_bins = lam * n_bins
+    b = np.int64(0)
+    bin_start = np.int64(1)  # [bin_start, bin_end) is bin b; empty until the first event
+    bin_end = np.int64(0)
     for i in range(len(t)):
         if codes[i] != 0:
             continue
-        b = t[i] // bin_us
+        ti = t[i]
+        if ti >= bin_end or ti < bin_start:  # a division only when the bin changes
+            b = ti // bin_us
+            bin_start = b * bin_us
+            bin_end = bin_start + bin_us
         xi = np.int64(x[i])
         yi = np.int64(y[i])
         cy = yi + radius
