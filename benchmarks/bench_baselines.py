@@ -22,11 +22,9 @@ from evstream.denoise.refractory import RefractoryFilter
 from evstream.denoise.stcf import SpatioTemporalCorrelationFilter
 from evstream.denoise.ynoise import YNoiseFilter
 from evstream.events import Geometry, NoiseClass
-from evstream.noise import NoiseSpec, inject
-from evstream.synth import scene
 from evstream.testing import state_nbytes
 
-from .common import events_per_s, report
+from .common import events_per_s, noisy_scene, report
 
 FILTERS = [("baf", BackgroundActivityFilter), ("stcf", SpatioTemporalCorrelationFilter),
            ("khodamoradi", KhodamoradiFilter), ("ynoise", YNoiseFilter), ("dwf", DoubleWindowFilter),
@@ -36,16 +34,12 @@ FILTERS = [("baf", BackgroundActivityFilter), ("stcf", SpatioTemporalCorrelation
 CHUNK = 50_000
 
 
-def stream(name: str, g: Geometry, duration_us: int):
-    sig = scene(name, g, duration_us=duration_us, seed=0)
-    spec = NoiseSpec(ba_rate_hz=3.0, hot_pixels=max(1, g.n_pixels // 1000), hot_rate_hz=(500.0, 2000.0))
-    return inject(sig, spec, seed=1, t_start_us=0, t_stop_us=duration_us)
 
 
 def run() -> None:
     cases = [("turntable", Geometry(346, 260), 1_000_000), ("bar", Geometry(1280, 720), 300_000)]
     for scene_name, g, duration in cases:
-        s = stream(scene_name, g, duration)
+        s = noisy_scene(scene_name, g, duration)
         n = len(s)
         counts = s.class_counts("label")
         print(f"-- {scene_name} {g}: {n:,} events ({counts[0]:,} signal, {counts[1]:,} background, "

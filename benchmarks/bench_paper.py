@@ -13,22 +13,15 @@ from evstream.denoise.density import DensityFilter
 from evstream.denoise.timeseries import TimeSeriesFilter
 from evstream.events import Geometry
 from evstream.noise import NoiseSpec, inject
-from evstream.synth import scene
 from evstream.testing import state_nbytes
 
-from .common import events_per_s, peak_alloc_bytes, report
-
-
-def stream(name: str, g: Geometry, duration_us: int):
-    sig = scene(name, g, duration_us=duration_us, seed=0)
-    spec = NoiseSpec(ba_rate_hz=3.0, hot_pixels=max(1, g.n_pixels // 1000), hot_rate_hz=(500.0, 2000.0))
-    return inject(sig, spec, seed=1, t_start_us=0, t_stop_us=duration_us)
+from .common import events_per_s, noisy_scene, peak_alloc_bytes, report
 
 
 def run() -> None:
     cases = [("turntable", Geometry(346, 260), 1_000_000), ("bar", Geometry(1280, 720), 300_000)]
     for name, g, duration in cases:
-        s = stream(name, g, duration)
+        s = noisy_scene(name, g, duration)
         n = len(s)
         rate = n / (duration * 1e-6)
         print(f"-- {name} {g}: {n:,} events, {rate / 1e6:.2f} M events/s of sensor time")

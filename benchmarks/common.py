@@ -35,6 +35,16 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def noisy_scene(name: str, geometry, duration_us: int):
+    """A synthetic scene with 3 Hz/pixel background activity and 0.1 % hot pixels at 500–2000 Hz."""
+    from evstream.noise import NoiseSpec, inject
+    from evstream.synth import scene
+
+    sig = scene(name, geometry, duration_us=duration_us, seed=0)
+    spec = NoiseSpec(ba_rate_hz=3.0, hot_pixels=max(1, geometry.n_pixels // 1000), hot_rate_hz=(500.0, 2000.0))
+    return inject(sig, spec, seed=1, t_start_us=0, t_stop_us=duration_us)
+
+
 def report(name: str, rate_hz: float, **extra) -> None:
     more = "  ".join(f"{k}={v}" for k, v in extra.items())
     print(f"{name:<48} {rate_hz / 1e6:9.1f} M events/s  {more}", flush=True)

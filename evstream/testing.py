@@ -124,15 +124,19 @@ def assert_chunk_invariant(
         _compare(whole, apply(make(), one_event_chunks(stream)), "one-event chunks")
 
 
-def assert_causal(make: Callable[[], object], stream: EventChunk, seed=0) -> None:
-    """Decisions for a prefix do not change when the events after it are replaced by others."""
-    rng = _rng(seed)
+def _other_future(stream: EventChunk, rng) -> tuple[int, EventChunk]:
+    """A random cut m and the stream with everything after its first m events replaced."""
     n = len(stream)
-    if n < 2:
-        return
     m = int(rng.integers(1, n))
     other = random_stream(rng, n - m, stream.geometry, t0_us=int(stream.t[m - 1]))
-    altered = concat([stream[:m], other])
+    return m, concat([stream[:m], other])
+
+
+def assert_causal(make: Callable[[], object], stream: EventChunk, seed=0) -> None:
+    """Decisions for a prefix do not change when the events after it are replaced by others."""
+    if len(stream) < 2:
+        return
+    m, altered = _other_future(stream, _rng(seed))
     a = classify_all(make(), [stream])[:m]
     b = classify_all(make(), [altered])[:m]
     _compare(a, b, f"prefix of {m} events with a different future")
@@ -208,14 +212,11 @@ def assert_frames_equal(a: list[Frame], b: list[Frame], what: str = "frames") ->
 
 def assert_framer_causal(make: Callable[[], object], stream: EventChunk, seed=0) -> None:
     """Frames a framer emits while fed a prefix are the same whatever events come after it."""
-    rng = _rng(seed)
-    n = len(stream)
-    if n < 2:
+    if len(stream) < 2:
         return
-    m = int(rng.integers(1, n))
-    other = random_stream(rng, n - m, stream.geometry, t0_us=int(stream.t[m - 1]))
+    m, altered = _other_future(stream, _rng(seed))
     emitted = []
-    for s in (stream, concat([stream[:m], other])):
+    for s in (stream, altered):
         framer = make()  # the prefix's watermark must not reveal the next event's time
         emitted.append(framer.push(s[:m].replace(t_end=int(s.t[m - 1]))))
     assert_frames_equal(emitted[0], emitted[1], f"frames emitted after a prefix of {m} events")

@@ -34,3 +34,27 @@ class Classifier:
     def params(self) -> dict:
         """The constructor parameters (units in their names), for provenance and TOML round trips."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init}
+
+
+class InPlaceClassifier(Classifier):
+    """Base of stages whose kernel classifies in place: `_run(chunk, codes, want_score)` judges the
+    events whose `codes` are SIGNAL, writes the class of those it rejects, and returns the scores
+    (empty unless `want_score`). No gather of the live events, no copy."""
+
+    def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
+        raise NotImplementedError
+
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        codes = chunk.classes().copy()
+        self._run(chunk, codes, want_score=False)
+        return chunk.replace(cls=codes)
+
+    def classify(self, chunk: EventChunk) -> np.ndarray:
+        codes = np.zeros(len(chunk), np.uint8)
+        self._run(chunk, codes, want_score=False)
+        return codes
+
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        """Class codes and per-event scores of an unclassified chunk (see the subclass for the score)."""
+        codes = np.zeros(len(chunk), np.uint8)
+        return codes, self._run(chunk, codes, want_score=True)

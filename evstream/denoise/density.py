@@ -29,7 +29,7 @@ from numba import njit
 
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
-from .base import Classifier
+from .base import InPlaceClassifier
 
 ABSOLUTE, RELATIVE = 0, 1
 
@@ -144,12 +144,14 @@ def density_kernel(t, x, y, p, start, codes, noise_code, hsum, padded_width, fif
 
 @register("stage", "density")
 @dataclass
-class DensityFilter(Classifier):
+class DensityFilter(InPlaceClassifier):
     """Spatio-temporal density filter (coarse stage): events in sparse neighbourhoods are BACKGROUND.
 
     `radius_px` r gives the L = 2r + 1 window; `window_us` is Δt; `mode` "relative" (default) or
     "absolute"; `density_hz` is D_th in events per pixel per second (absolute mode); `rho_rel` the
     multiple of the sensor's mean density an event's neighbourhood must reach (relative mode).
+    Score (`classify_scored`): ρ(m) in Hz/pixel (absolute; kept iff >= D_th) or the density relative
+    to the sensor's mean, N(m) · W·H / (L² · g(m)) (relative; kept iff >= ρ_rel and N(m) >= 1).
     """
 
     radius_px: int = 2
@@ -225,20 +227,3 @@ class DensityFilter(Classifier):
             if i >= n:
                 return score
             self._grow(s)
-
-    def __call__(self, chunk: EventChunk) -> EventChunk:
-        codes = chunk.classes().copy()
-        self._run(chunk, codes, want_score=False)
-        return chunk.replace(cls=codes)
-
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
-        """Class codes (SIGNAL or BACKGROUND) and scores of an unclassified chunk: ρ(m) in Hz/pixel
-        (absolute mode; kept iff >= D_th) or the density relative to the sensor's mean,
-        N(m) · W·H / (L² · g(m)) (relative mode; kept iff >= ρ_rel and N(m) >= 1)."""
-        codes = np.zeros(len(chunk), np.uint8)
-        return codes, self._run(chunk, codes, want_score=True)
-
-    def classify(self, chunk: EventChunk) -> np.ndarray:
-        codes = np.zeros(len(chunk), np.uint8)
-        self._run(chunk, codes, want_score=False)
-        return codes

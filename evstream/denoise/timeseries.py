@@ -25,7 +25,7 @@ from numba import njit
 
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
-from .base import Classifier
+from .base import InPlaceClassifier
 
 DIFFERENCE, RATIO = 0, 1
 
@@ -110,12 +110,13 @@ def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bin
 
 @register("stage", "dc")
 @dataclass
-class TimeSeriesFilter(Classifier):
+class TimeSeriesFilter(InPlaceClassifier):
     """Hot-pixel filter by the DC component of each pixel's activity series (fine stage).
 
     `rate_hz` fs: activity sampling rate (bins of 1/fs anchored at t = 0); `n_bins` n <= 64: bins in
     the window (n/fs of history); `lam` λ: the DC margin over the neighbours' mean (difference form) or
     the factor (ratio form); `radius_px`: neighbourhood half-size (1 -> the 8 neighbours).
+    Score (`classify_scored`): DC_m - mean (difference; hot iff > λ) or DC_m / mean (ratio).
     """
 
     rate_hz: float = 250.0
@@ -161,19 +162,3 @@ class TimeSeriesFilter(Classifier):
                   self.radius_px, self.bin_us, self.n_bins, float(self.lam),
                   DIFFERENCE if self.form == "difference" else RATIO, g.width, g.height, want_score, score)
         return score
-
-    def __call__(self, chunk: EventChunk) -> EventChunk:
-        codes = chunk.classes().copy()
-        self._run(chunk, codes, want_score=False)
-        return chunk.replace(cls=codes)
-
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
-        """Class codes (SIGNAL or HOT_PIXEL) and scores (DC margin or ratio; hot iff > λ) of an
-        unclassified chunk."""
-        codes = np.zeros(len(chunk), np.uint8)
-        return codes, self._run(chunk, codes, want_score=True)
-
-    def classify(self, chunk: EventChunk) -> np.ndarray:
-        codes = np.zeros(len(chunk), np.uint8)
-        self._run(chunk, codes, want_score=False)
-        return codes
