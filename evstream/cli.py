@@ -655,4 +655,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from evstream.cli import main as _main  # one copy of this module (cli_live imports evstream.cli)
+
+    sys.exit(_main())

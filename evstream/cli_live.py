@@ -85,7 +85,7 @@ def packetize(chunks, packet_us: int):
 def cmd_publish(args) -> int:
     import signal
 
-    from sinks.zenoh_pub import PacketPublisher
+    from sinks.zenoh_pub import PacketPublisher, linger
     from sources.zenoh_session import drain
     from sources.zenoh_sub import camera_of
 
@@ -110,8 +110,9 @@ def cmd_publish(args) -> int:
                 pub.put_events(packet.t, packet.x, packet.y, packet.p, width=g.width, height=g.height)
         wall = time.perf_counter() - t0
         pub.end()
-        if not drain(session, args.drain_s):
-            print(f"evstream: warning: packets still queued after --drain-s {args.drain_s:g}; closing anyway",
+        drain(session, args.drain_s)
+        if not linger([pub], args.drain_s) and pub.matching:
+            print(f"evstream: note: subscribers still there after --drain-s {args.drain_s:g}; closing",
                   file=sys.stderr)
         pub.close()
     finally:
@@ -192,8 +193,6 @@ class _Camera:
             key = args.republish.replace("{camera}", self.name)
             self.pub = ZenohSink(node.session, key, congestion="block", frame_id=self.name,
                                  frames_key=frames_key_for(key) if self.pipeline.framer is not None else None)
-            if args.wait_subscribers > 0:
-                self.pub.publisher.wait_matching(args.wait_subscribers)
 
     def process(self, packet) -> None:
         batch = self.pipeline.process(packet.chunk)
@@ -300,6 +299,8 @@ def cmd_subscribe(args) -> int:
             def should_stop() -> bool:
                 return stop.signum is not None or (deadline is not None and time.monotonic() > deadline)
 
+            if args.republish and args.wait_subscribers > 0:
+                _wait_readers(session, args.republish.replace("{camera}", "*"), args.wait_subscribers)
             sub = ZenohSubscription(args.keyexpr, session=session, flow=flow, depth=args.depth,
                                     max_packet_bytes=args.max_packet_bytes, geometry=geometry,
                                     idle_s=args.idle_s, should_stop=should_stop)
@@ -308,8 +309,8 @@ def cmd_subscribe(args) -> int:
                 for item in sub:
                     cam = node.cameras.get(item.camera)
                     if isinstance(item, End):
-                        if cam is not None and args.until_end and all(
-                                s.ended for s in sub.cameras.values()):
+                        if (cam is not None and args.until_end and len(node.cameras) >= args.until_end
+                                and all(s.ended for s in sub.cameras.values() if s.packets)):
                             stop_reason = "end of stream"
                             break
                         continue
@@ -325,11 +326,18 @@ def cmd_subscribe(args) -> int:
                     if args.delay_ms:
                         time.sleep(args.delay_ms * 1e-3)
             finally:
+                publishers = [c.pub.publisher for c in node.cameras.values() if c.pub is not None]
                 for cam in node.cameras.values():
-                    cam.close()
+                    cam.close()  # end marks sent
                 totals = sub.totals()
                 stats = {name: s.as_dict() for name, s in sub.cameras.items()}
-                sub.close()
+                sub.close()  # upstream publishers see this reader leave
+                if publishers:  # keep the session until the cleaned stream's readers have it all
+                    from sinks.zenoh_pub import linger
+                    from sources.zenoh_session import drain
+
+                    drain(session, args.drain_s)
+                    linger(publishers, args.drain_s)
             if stop.signum is not None:
                 stop_reason = signal.Signals(stop.signum).name
             elif stop_reason is None:
@@ -341,10 +349,6 @@ def cmd_subscribe(args) -> int:
             rec.disconnect()
         if node.viewer is not None:
             node.viewer.finish()
-        if args.republish:
-            from sources.zenoh_session import drain
-
-            drain(session, args.drain_s)
         session.close()
     wall = time.perf_counter() - t0
     cams = {}
@@ -374,6 +378,19 @@ def cmd_subscribe(args) -> int:
             pass
         node.viewer.stop()
     return 0
+
+
+def _wait_readers(session, keyexpr: str, timeout_s: float) -> bool:
+    """Wait for a subscriber of the cleaned stream before subscribing to the raw one: once packets fill the
+    FIFO, Zenoh's receive thread is blocked and would not hear of new subscribers until the FIFO drains."""
+    probe = session.declare_publisher(keyexpr)
+    deadline = time.monotonic() + timeout_s
+    while not probe.matching_status.matching:
+        if time.monotonic() > deadline:
+            print(f"evstream: warning: no subscriber on {keyexpr} after {timeout_s:g} s", file=sys.stderr)
+            return False
+        time.sleep(0.01)
+    return True
 
 
 class _Status:
@@ -460,7 +477,8 @@ def add_parsers(sub, add_source_flags, add_pipeline_flags, add_framer_flags) -> 
     p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                    help="wait up to S seconds for a subscriber before publishing")
     p.add_argument("--drain-s", type=float, default=10.0, metavar="S",
-                   help="at the end, wait up to S seconds for queued packets to leave (default 10)")
+                   help="at the end, wait up to S seconds for subscribers to take the stream and leave "
+                        "(default 10)")
     _add_zenoh_flags(p)
     p.add_argument("--json", action="store_true", help="print what was published as JSON")
     p.set_defaults(func=cmd_publish)
@@ -487,13 +505,15 @@ def add_parsers(sub, add_source_flags, add_pipeline_flags, add_framer_flags) -> 
     p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                    help="with --republish: wait up to S seconds for a subscriber of the cleaned stream")
     p.add_argument("--drain-s", type=float, default=10.0, metavar="S",
-                   help="with --republish: at the end, wait up to S seconds for queued packets to leave")
+                   help="with --republish: at the end, wait up to S seconds for the cleaned stream's "
+                        "subscribers to take it and leave (default 10)")
     p.add_argument("--flow", choices=["block", "ring"],
                    help="block: FIFO, no loss, backpressure (default for --archive/--republish); "
                         "ring: newest packets only, counted drops (default for the viewer alone)")
     p.add_argument("--depth", type=int, default=64, help="packets the FIFO or ring holds (default 64)")
     p.add_argument("--max-packet-bytes", type=int, default=64 << 20, help="larger packets are skipped")
-    p.add_argument("--until-end", action="store_true", help="stop when every camera's publisher has ended")
+    p.add_argument("--until-end", nargs="?", const=1, type=int, metavar="N",
+                   help="stop when every camera's publisher has ended (and at least N cameras were seen)")
     p.add_argument("--idle-s", type=float, help="stop after this long without a packet")
     p.add_argument("--duration-s", type=float, help="stop after this long")
     p.add_argument("--delay-ms", type=float, default=0.0, help=argparse.SUPPRESS)  # emulate a slow consumer

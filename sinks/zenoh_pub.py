@@ -26,7 +26,7 @@ from evstream.events import EventChunk, Frame, NoiseClass
 from evstream.pipeline import Batch, RunStats
 from sinks.mcap_sink import render_mono8
 
-__all__ = ["CONGESTION", "PacketPublisher", "ZenohSink", "frames_key_for"]
+__all__ = ["CONGESTION", "PacketPublisher", "ZenohSink", "frames_key_for", "linger"]
 
 CONGESTION = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP}
 MAX_PACKET_EVENTS = 1_000_000  # a larger batch is split: bounded packets for every subscriber
@@ -39,6 +39,21 @@ def frames_key_for(events_key: str) -> str:
         i = len(parts) - 1 - parts[::-1].index("events")
         return "/".join(parts[:i] + ["frames"])
     return events_key + "/frames"
+
+
+def linger(publishers, timeout_s: float) -> bool:
+    """After the end marks: keep the session open until no subscriber matches any of `publishers` (those
+    that stop at the end have taken everything and left) or `timeout_s` passes; True if they all left.
+
+    Closing a session drops what Zenoh still holds for it on the way (in the router's queues under
+    backpressure), so a publisher must not close before its subscribers have read the stream.
+    """
+    deadline = time.monotonic() + timeout_s
+    while any(p.matching for p in publishers):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
 
 
 class PacketPublisher:
@@ -58,10 +73,15 @@ class PacketPublisher:
         self._pub = session.declare_publisher(key, congestion_control=CONGESTION[congestion], express=express,
                                               priority=zenoh.Priority.DATA)
 
+    @property
+    def matching(self) -> bool:
+        """Whether a subscriber matches the key now."""
+        return self._pub.matching_status.matching
+
     def wait_matching(self, timeout_s: float) -> bool:
         """Wait until a subscriber matches the key (a put before that goes nowhere); True if one does."""
         deadline = time.monotonic() + timeout_s
-        while not self._pub.matching_status:
+        while not self._pub.matching_status.matching:
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)

@@ -1,0 +1,288 @@
+"""Live streams over real Zenoh sessions in separate processes on 127.0.0.1: publisher -> router -> denoise
+node -> subscriber with counts conserved, a publisher restarted mid-stream, slow subscribers (no loss under
+BLOCK, counted drops under a ring), garbage payloads, Ctrl-C, and a ROS 2 rmw_zenoh-shaped publisher."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+import zenoh.ext as zext
+from mcap_ros2._dynamic import serialize_dynamic
+
+from evstream.codecs import evt3
+from evstream.codecs.attachment import encode_attachment
+from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
+from evstream.codecs.packets import to_packet
+from sources import open_source
+from sources.zenoh_session import drain, open_session
+
+ROOT = Path(__file__).resolve().parents[1]
+TURNTABLE = ROOT / "recordings" / "turntable.npz"
+BAR = ROOT / "recordings" / "bar.npz"
+TIMEOUT_S = 60
+
+
+def _events(path):
+    src = open_source(path)
+    chunks = list(src)
+    return (np.concatenate([c.t for c in chunks]), np.concatenate([c.x for c in chunks]),
+            np.concatenate([c.y for c in chunks]), np.concatenate([c.p for c in chunks]), src.geometry)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Procs:
+    """Child processes of one test: started with pipes, always killed at teardown (a test never hangs)."""
+
+    def __init__(self, tmp: Path):
+        self.tmp = tmp
+        self.procs: list[subprocess.Popen] = []
+
+    def start(self, *args: str) -> subprocess.Popen:
+        n = len(self.procs)
+        p = subprocess.Popen([sys.executable, "-m", "evstream.cli", *args], cwd=ROOT,
+                             stdout=open(self.tmp / f"out{n}.txt", "wb"), stderr=open(self.tmp / f"err{n}.txt", "wb"))
+        p.n = n
+        self.procs.append(p)
+        return p
+
+    def stderr(self, p) -> str:
+        return (self.tmp / f"err{p.n}.txt").read_text()
+
+    def wait_for(self, p, text: str, timeout_s: float = 30) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            out = (self.tmp / f"out{p.n}.txt").read_text() + self.stderr(p)
+            if text in out:
+                return
+            if p.poll() is not None:
+                raise AssertionError(f"process exited ({p.returncode}) before {text!r}: {out}")
+            time.sleep(0.05)
+        raise AssertionError(f"no {text!r} within {timeout_s} s: {self.stderr(p)}")
+
+    def result(self, p, timeout_s: float = TIMEOUT_S) -> dict:
+        rc = p.wait(timeout=timeout_s)
+        out = (self.tmp / f"out{p.n}.txt").read_text()
+        assert rc == 0, f"exit {rc}: {self.stderr(p)}"
+        return json.loads(out.strip().splitlines()[-1])
+
+    def router(self, port: int) -> subprocess.Popen:
+        r = self.start("router", "--listen", f"tcp/127.0.0.1:{port}")
+        self.wait_for(r, "listening on")
+        return r
+
+    def subscriber(self, port: int, *args: str) -> subprocess.Popen:
+        s = self.start("subscribe", *args, "--connect", f"tcp/127.0.0.1:{port}", "--json")
+        self.wait_for(s, "subscribed to")
+        return s
+
+    def kill_all(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait(timeout=10)
+
+
+@pytest.fixture
+def procs(tmp_path):
+    ps = Procs(tmp_path)
+    yield ps
+    ps.kill_all()
+
+
+def test_chain_publisher_router_denoise_subscriber_conserves_events(procs, tmp_path):
+    """Two cameras on one router; the denoise node has a pipeline per camera; nothing is lost anywhere."""
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs.router(port)
+    final = procs.subscriber(port, "evstream/*/events/clean", "--denoise", "none", "--until-end", "2", "--idle-s", "40")
+    raw = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--archive",
+                           str(tmp_path / "raw_{camera}.mcap"), "--until-end", "2", "--idle-s", "40")
+    node = procs.subscriber(port, "evstream/*/events", "--republish", "--wait-subscribers", "10", "--drain-s", "30",
+                            "--until-end", "2", "--idle-s", "40")
+    pubs = {cam: procs.start("publish", str(path), "--key", f"evstream/{cam}/events", "--connect", ep,
+                             "--speed", "0", "--wait-subscribers", "10", "--drain-s", "30", "--json")
+            for cam, path in (("cam1", TURNTABLE), ("cam2", BAR))}
+    sent = {cam: procs.result(p) for cam, p in pubs.items()}
+    node_out, raw_out, final_out = procs.result(node), procs.result(raw), procs.result(final)
+    for cam, path in (("cam1", TURNTABLE), ("cam2", BAR)):
+        n = len(_events(path)[0])
+        assert sent[cam]["events"] == n
+        got = node_out["cameras"][cam]
+        assert got["events"] == n and got["missing"] == 0 and got["malformed"] == 0 and got["restarts"] == 0
+        assert got["events_signal"] + got["events_background"] + got["events_hot_pixel"] == n
+        assert 0 < got["events_signal"] < n  # the paper's cascade removed noise, kept signal
+        assert got["published_events"] == got["events_signal"]
+        clean = final_out["cameras"][cam]
+        assert clean["events"] == got["events_signal"] and clean["missing"] == 0
+        assert clean["latency_p99_ms"] >= clean["latency_p50_ms"] > 0
+        assert raw_out["cameras"][cam]["events"] == n
+        archived = list(open_source(tmp_path / f"raw_{cam}.mcap"))
+        t = np.concatenate([c.t for c in archived])
+        assert np.array_equal(t, _events(path)[0])  # the archive holds exactly the published stream
+    # separate state per camera: the same node's result for cam1 equals a node that saw cam1 alone
+    assert node_out["stopped_by"] == "end of stream"
+
+
+def test_publisher_restarted_mid_stream(procs, tmp_path):
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs.router(port)
+    sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "paper", "--archive",
+                           str(tmp_path / "live.mcap"), "--until-end", "--idle-s", "40")
+    first = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
+                        "--speed", "1", "--wait-subscribers", "10", "--drain-s", "30")
+    deadline = time.monotonic() + 30
+    while not (tmp_path / "live.mcap").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)  # the archive opens with the first packet: packets flow
+    time.sleep(0.4)
+    first.kill()  # no end mark: the camera just vanished
+    first.wait(timeout=10)
+    second = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
+                         "--speed", "0", "--wait-subscribers", "10", "--drain-s", "30", "--json")
+    n = procs.result(second)["events"]
+    out = procs.result(sub)["cameras"]["cam1"]
+    assert out["restarts"] == 1
+    assert len(out["segment_events"]) == 2 and 0 < out["segment_events"][0] < n
+    assert out["segment_events"][1] == n  # the whole second run, through a fresh pipeline
+    assert out["events_signal"] + out["events_background"] + out["events_hot_pixel"] == out["events"]
+    assert out["archives"] == [str(tmp_path / "live.mcap"), str(tmp_path / "live.1.mcap")]
+    second_archive = sum(len(c) for c in open_source(tmp_path / "live.1.mcap"))
+    assert 0 < second_archive <= n
+
+
+def test_slow_subscribers_block_loses_nothing_ring_counts_drops(procs):
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs.router(port)
+    block = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--flow", "block", "--depth", "4",
+                             "--delay-ms", "4", "--until-end", "--idle-s", "40")
+    ring = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--flow", "ring", "--depth", "2",
+                            "--delay-ms", "25", "--idle-s", "4")
+    sent = procs.result(procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
+                                    "--speed", "0", "--wait-subscribers", "10", "--drain-s", "30", "--json"))
+    b = procs.result(block)["cameras"]["cam1"]
+    assert b["events"] == sent["events"] and b["packets"] == sent["packets"] and b["missing"] == 0
+    r = procs.result(ring)["cameras"]["cam1"]
+    assert r["packets"] < sent["packets"]
+    assert r["missing"] > 0 and r["gaps"] > 0
+    assert r["packets"] + r["missing"] <= sent["packets"]  # every skipped packet is counted, none twice
+
+
+def test_garbage_payloads_are_counted_and_skipped_then_ctrl_c_stops_cleanly(procs, tmp_path):
+    port = free_port()
+    procs.router(port)
+    sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--max-packet-bytes", "100000",
+                           "--archive", str(tmp_path / "g_{camera}.mcap"))
+    t, x, y, p, g = _events(TURNTABLE)
+    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
+                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 3000, 1000))]
+    outside = encode_packet(to_packet(t[3000:3010], x[3000:3010], y[3000:3010], p[3000:3010], width=8, height=8))
+    rng = np.random.default_rng(0)
+    session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        pub = session.declare_publisher("evstream/cam1/events", congestion_control=zenoh.CongestionControl.BLOCK)
+        deadline = time.monotonic() + 10
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        pub.put(good[0], attachment=encode_attachment(0, time.time_ns()))
+        pub.put(rng.integers(0, 256, 5000, dtype=np.uint8).tobytes())  # random bytes
+        pub.put(good[1][: len(good[1]) // 2])  # truncated
+        pub.put(b"\x00\x01\x00\x00" + b"\xff" * 64)  # lengths pointing far past the end
+        pub.put(bytes(200_000))  # oversized: refused on its length
+        pub.put(outside)  # events outside the 8x8 sensor it claims
+        pub.put(good[1], attachment=b"\x01\x02\x03")  # bad attachment: packet still used (CDR seq)
+        pub.put(good[2], attachment=encode_attachment(2, time.time_ns()))
+        drain(session)
+        session.put("evstream/cam2/events", b"not a packet")
+        drain(session)
+        deadline = time.monotonic() + 20
+        while '"cam2"' not in procs.stderr(sub) and "cam2/events: malformed" not in procs.stderr(sub) \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        sub.send_signal(signal.SIGINT)
+        out = procs.result(sub, timeout_s=20)
+    finally:
+        session.close()  # only now: closing drops what Zenoh still holds on the way
+    c1 = out["cameras"]["cam1"]
+    assert c1["events"] == 3000 and c1["packets"] == 3
+    assert c1["oversized"] == 1 and c1["malformed"] == 4 and c1["bad_attachments"] == 1
+    assert out["cameras"]["cam2"]["malformed"] == 1
+    assert out["stopped_by"] == "SIGINT"
+    assert "malformed packet skipped" in procs.stderr(sub)
+    archived = list(open_source(tmp_path / "g_cam1.mcap"))  # a complete, readable file after Ctrl-C
+    assert sum(len(c) for c in archived) == 3000
+
+
+def test_ros2_rmw_zenoh_event_packets(procs, tmp_path):
+    """A ROS 2 node's EventPackets as rmw_zenoh publishes them: key <domain>/<topic>/<dds type>/<type hash>,
+    CDR from mcap_ros2's serializer, one EVT3 stream cut into packets, rmw_zenoh's attachment written by
+    Zenoh's own serializer (int64 seq, int64 source time, GID as a sequence)."""
+    port = free_port()
+    procs.router(port)
+    sub = procs.subscriber(port, "0/**/event_camera_msgs::msg::dds_::EventPacket_/*", "--denoise", "none",
+                           "--archive", str(tmp_path / "ros_{camera}.mcap"), "--idle-s", "4")
+    t, x, y, p, g = _events(TURNTABLE)
+    ros_encode = serialize_dynamic(DATATYPE, MSGDEF)[DATATYPE]
+    enc = evt3.Evt3Encoder()
+    key = ("0/dvs/events/event_camera_msgs::msg::dds_::EventPacket_/"
+           "RIHS01_" + "ab" * 32)
+    session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+    cuts = np.arange(0, len(t) + 20_000, 20_000)
+    try:
+        pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+        deadline = time.monotonic() + 10
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+            payload = enc.encode(t[a:b], x[a:b], y[a:b], p[a:b])
+            stamp_ns = 1_700_000_000_000_000_000 + int(t[a]) * 1000
+            msg = {"header": {"stamp": {"sec": stamp_ns // 10**9, "nanosec": stamp_ns % 10**9}, "frame_id": "dvs"},
+                   "height": g.height, "width": g.width, "seq": k, "time_base": 123456789, "encoding": "evt3",
+                   "is_bigendian": False, "events": payload}
+            att = zext.z_serialize((zext.Int64(k + 1), zext.Int64(time.time_ns()), bytes(range(16))))
+            pub.put(ros_encode(msg), attachment=att)
+        drain(session)
+        out = procs.result(sub)
+    finally:
+        session.close()
+    dvs = out["cameras"]["dvs"]
+    assert dvs["events"] == len(t) and dvs["malformed"] == 0 and dvs["bad_attachments"] == 0
+    assert dvs["missing"] == 0 and dvs["first_seq"] == 1
+    archived = list(open_source(tmp_path / "ros_dvs.mcap"))
+    got_t = np.concatenate([c.t for c in archived])
+    got_x = np.concatenate([c.x for c in archived])
+    assert np.array_equal(got_t, t) and np.array_equal(got_x, x)  # one EVT3 stream across packets, decoded
+
+
+def test_endpoints_are_explicit_and_loopback_by_default():
+    from sources.zenoh_session import config
+
+    c = config(mode="peer", connect=["tcp/127.0.0.1:7447"])
+    assert json.loads(c.get_json("listen/endpoints")) == []
+    assert json.loads(c.get_json("scouting/multicast/enabled")) is False
+    with pytest.raises(ValueError):
+        config(listen=["127.0.0.1:7447"])  # no protocol
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "subscribe", "k", "--connect", "nonsense"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert r.returncode == 2 and "endpoint" in r.stderr
+    port = free_port()
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "subscribe", "k", "--connect",
+                        f"tcp/127.0.0.1:{port}", "--idle-s", "1"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S, env={**os.environ})
+    assert r.returncode == 1 and "cannot open a Zenoh" in r.stderr and len(r.stderr.strip().splitlines()) == 1
