@@ -1,0 +1,76 @@
+"""Attachments (evstream's and rmw_zenoh's, the latter checked against Zenoh's own serializer), camera names
+from keys, packetizing a stream for publication, and the subscriber's handling of samples in one process."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import zenoh.ext as zext
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evstream.cli_live import packetize
+from evstream.codecs.attachment import (
+    OURS,
+    RMW_ZENOH,
+    AttachmentError,
+    decode_attachment,
+    encode_attachment,
+    encode_rmw_attachment,
+)
+from evstream.events import EventChunk, Geometry, concat
+from sources.zenoh_sub import camera_of
+
+i64 = st.integers(-(1 << 63), (1 << 63) - 1)
+
+
+@given(st.integers(0, (1 << 64) - 1), i64)
+def test_our_attachment_round_trips(seq, t):
+    a = decode_attachment(encode_attachment(seq, t))
+    assert (a.seq, a.source_time_ns, a.kind) == (seq, t, OURS)
+
+
+@settings(max_examples=50)
+@given(st.integers(0, (1 << 63) - 1), i64, st.sampled_from([16, 24]))
+def test_rmw_attachment_matches_zenoh_serializer(seq, t, gid_len):
+    gid = bytes(range(gid_len))
+    theirs = zext.z_serialize((zext.Int64(seq), zext.Int64(t), gid)).to_bytes()  # how rmw_zenoh writes it
+    assert encode_rmw_attachment(seq, t, gid) == theirs
+    a = decode_attachment(theirs)
+    assert (a.seq, a.source_time_ns, a.kind, a.gid) == (seq, t, RMW_ZENOH, gid)
+
+
+@pytest.mark.parametrize("bad", [b"", b"\x01" * 15, b"\x00" * 16 + b"\x05abc", b"\x00" * 16 + b"\xff" * 12,
+                                 b"\x00" * 17])
+def test_bad_attachments_are_errors(bad):
+    if len(bad) == 17:  # a GID of length 0 is well formed
+        assert decode_attachment(bad).gid == b""
+        return
+    with pytest.raises(AttachmentError):
+        decode_attachment(bad)
+
+
+@pytest.mark.parametrize("key,camera", [
+    ("evstream/cam1/events", "cam1"),
+    ("evstream/cam1/events/clean", "cam1"),
+    ("0/dvs/events/event_camera_msgs::msg::dds_::EventPacket_/RIHS01_" + "0" * 64, "dvs"),
+    ("3/robot/left/events/event_camera_msgs::msg::dds_::EventPacket_/TypeHashNotSupported", "left"),
+    ("0/events/event_camera_msgs::msg::dds_::EventPacket_/RIHS01_x", "events"),
+    ("lab/stream", "lab_stream"),
+])
+def test_camera_of_key(key, camera):
+    assert camera_of(key) == camera
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 30_000), min_size=1, max_size=300), st.integers(1, 40), st.integers(100, 5000))
+def test_packetize_cuts_on_the_grid_and_keeps_every_event(dts, n_chunks, packet_us):
+    t = np.cumsum(np.asarray(dts, np.int64))
+    g = Geometry(16, 16)
+    ev = EventChunk.from_arrays(t, t % 16, (t // 16) % 16, t % 2, g)
+    cuts = np.linspace(0, len(t), min(n_chunks, len(t)) + 1).astype(int)
+    packets = list(packetize([ev[a:b] for a, b in zip(cuts[:-1], cuts[1:])], packet_us))
+    assert np.array_equal(concat(packets, g).t, t)
+    cells = [set((p.t // packet_us).tolist()) for p in packets]
+    assert all(len(c) == 1 for c in cells)  # one grid cell per packet
+    assert len({next(iter(c)) for c in cells}) == len(cells)  # each cell once
