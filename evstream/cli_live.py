@@ -299,6 +299,7 @@ def cmd_subscribe(args) -> int:
             def should_stop() -> bool:
                 return stop.signum is not None or (deadline is not None and time.monotonic() > deadline)
 
+            _warm_up(args)
             if args.republish and args.wait_subscribers > 0:
                 _wait_readers(session, args.republish.replace("{camera}", "*"), args.wait_subscribers)
             sub = ZenohSubscription(args.keyexpr, session=session, flow=flow, depth=args.depth,
@@ -378,6 +379,29 @@ def cmd_subscribe(args) -> int:
             pass
         node.viewer.stop()
     return 0
+
+
+def _warm_up(args) -> None:
+    """Load the numba kernels (decoder, stages, encoder) before packets arrive, so the first packets do
+    not wait behind compilation and the FIFO does not start with a backlog."""
+    from sources.zenoh_sub import ZenohSubscription  # noqa: F401 - imports the decoders
+
+    from .cli import _attach_framer, _pipeline
+    from .codecs.event_packet import decode_packet, encode_packet
+    from .codecs.packets import PacketDecoder, to_packet
+    from .events import Geometry
+
+    rng = np.random.default_rng(0)
+    n, g = 2000, Geometry(64, 64)
+    t = np.sort(rng.integers(0, 50_000, n)).astype(np.int64)
+    x, y, p = rng.integers(0, 64, n), rng.integers(0, 64, n), rng.integers(0, 2, n)
+    data = encode_packet(to_packet(t, x, y, p, width=g.width, height=g.height))
+    t, x, y, p = PacketDecoder(absolute=True).decode(decode_packet(data))
+    PacketDecoder(absolute=False).decode(decode_packet(data))
+    pipeline = _pipeline(args, None)
+    _attach_framer(pipeline, args)
+    pipeline.process(EventChunk.from_arrays(t, x, y, p, g))
+    pipeline.finish(g)
 
 
 def _wait_readers(session, keyexpr: str, timeout_s: float) -> bool:
