@@ -286,3 +286,43 @@ def test_endpoints_are_explicit_and_loopback_by_default():
                         f"tcp/127.0.0.1:{port}", "--idle-s", "1"],
                        cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S, env={**os.environ})
     assert r.returncode == 1 and "cannot open a Zenoh" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_viewer_save_per_camera_and_frames_republished(procs, tmp_path):
+    """`subscribe --save` logs each camera into the Rerun recording (a second camera gets its own .rrd);
+    a republishing node with a framer publishes foxglove.RawImage frames beside the cleaned stream."""
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+    from rerun.chunk import RrdReader
+
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs.router(port)
+    session = open_session(connect=[ep])
+    frames = session.declare_subscriber("evstream/*/frames", zenoh.handlers.FifoChannel(1000))
+    try:
+        viewer = procs.subscriber(port, "evstream/*/events", "--save", str(tmp_path / "live.rrd"), "--flow", "block",
+                                  "--until-end", "2", "--idle-s", "40")
+        node = procs.subscriber(port, "evstream/cam1/events", "--republish", "--framer", "fw", "--window-us",
+                                "50000", "--until-end", "--idle-s", "40")
+        pubs = [procs.start("publish", str(path), "--key", f"evstream/{cam}/events", "--connect", ep, "--speed",
+                            "0", "--wait-subscribers", "10", "--drain-s", "30", "--json")
+                for cam, path in (("cam1", TURNTABLE), ("cam2", BAR))]
+        for p in pubs:
+            procs.result(p)
+        out, node_out = procs.result(viewer), procs.result(node)
+        images = []
+        while (s := frames.try_recv()) is not None:
+            msg = RawImage()
+            msg.ParseFromString(s.payload.to_bytes())
+            images.append((str(s.key_expr), msg.width, msg.height, msg.encoding, len(msg.data)))
+    finally:
+        session.close()
+    assert out["flow"] == "block" and out["output"] == "save"
+    assert {k: v["events"] for k, v in out["cameras"].items()} == {"cam1": 254078, "cam2": 174999}
+    assert node_out["cameras"]["cam1"]["frames"] == len(images) > 0
+    assert all(i == ("evstream/cam1/frames", 346, 260, "mono8", 346 * 260) for i in images)
+    paths = sorted(p.name for p in tmp_path.glob("live*.rrd"))
+    assert len(paths) == 2  # live.rrd for the first camera, live.<camera>.rrd for the other
+    for name in paths:
+        entities = {c.entity_path for c in RrdReader(tmp_path / name).stream()}
+        assert "/events/signal" in entities
