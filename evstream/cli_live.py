@@ -270,6 +270,12 @@ def cmd_subscribe(args) -> int:
         raise UsageError(f"--archive {args.archive}: the archive's name must end in .mcap")
     if args.republish and any(c in args.republish.replace("{camera}", "") for c in "*$?#"):
         raise UsageError(f"--republish {args.republish}: a concrete key (with {{camera}}), no wildcards")
+    for name in ("depth", "max_packet_bytes"):
+        if getattr(args, name) < 1:
+            raise UsageError(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
+    for name in ("idle_s", "duration_s"):
+        if getattr(args, name) is not None and getattr(args, name) <= 0:
+            raise UsageError(f"--{name.replace('_', '-')} {getattr(args, name)}: must be positive")
     flow = args.flow or ("ring" if viewer_flags and not (args.archive or args.republish) else "block")
     geometry = None
     if args.geometry:
