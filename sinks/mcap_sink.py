@@ -44,7 +44,7 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from mcap.writer import CompressionType, Writer
 
-from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
+from evstream.codecs.event_packet import DATATYPE, HEADER_MSGDEFS, MSGDEF, encode_packet
 from evstream.codecs.packets import ENCODINGS, PacketEncoder
 from evstream.events import N_CLASSES, EventChunk, EventError, Frame, Geometry, NoiseClass
 from evstream.pipeline import Batch, RunStats
@@ -179,15 +179,7 @@ string encoding
 uint8 is_bigendian
 uint32 step
 uint8[] data
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
+""" + HEADER_MSGDEFS
 
 
 def ros2_image(img: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:

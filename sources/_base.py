@@ -158,6 +158,13 @@ class FileSource:
         raise NotImplementedError
 
     # -- shared ----------------------------------------------------------------------------------
+    def _column_blocks(self, cols: dict, n_events: int, time_unit: str) -> Iterator[Block]:
+        """Blocks of a recording already held as columns `t`, `x`, `y`, `p` (npy/npz, MATLAB)."""
+        step = max(1, self.block_bytes // 16)
+        for a in range(0, n_events, step):
+            b = min(a + step, n_events)
+            yield to_events(self, cols["t"][a:b], cols["x"][a:b], cols["y"][a:b], cols["p"][a:b], time_unit)
+
     def set_geometry(self, g: Geometry | None, source: str) -> None:
         """Use `g` (from the header, or assumed) unless the user gave one."""
         if self.geometry_override is None and g is not None:

@@ -20,7 +20,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit
 
 NAME = "MATLAB .mat (level 5)"
 FORMAT = "mat"
@@ -169,11 +169,7 @@ class MatSource(FileSource):
         return {k: np.ascontiguousarray(rows[:, i]) for i, k in enumerate(columns)}, name
 
     def _blocks(self) -> Iterator[Block]:
-        c = self._cols
-        step = max(1, self.block_bytes // 16)
-        for a in range(0, self.n_events, step):
-            b = min(a + step, self.n_events)
-            yield to_events(self, c["t"][a:b], c["x"][a:b], c["y"][a:b], c["p"][a:b], self.time_unit)
+        return self._column_blocks(self._cols, self.n_events, self.time_unit)
 
 
 def open(path, **options) -> MatSource:  # noqa: A001 - the format-module interface

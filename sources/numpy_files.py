@@ -18,7 +18,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit
 
 NAME = "NumPy .npy / .npz (structured or struct of arrays)"
 FORMAT = "npy"
@@ -100,11 +100,7 @@ class NumpySource(FileSource):
         raise self.error(f"no t/x/y/p arrays among {z.files}")
 
     def _blocks(self) -> Iterator[Block]:
-        c = self._cols
-        step = max(1, self.block_bytes // 16)
-        for a in range(0, self.n_events, step):
-            b = min(a + step, self.n_events)
-            yield to_events(self, c["t"][a:b], c["x"][a:b], c["y"][a:b], c["p"][a:b], self.time_unit)
+        return self._column_blocks(self._cols, self.n_events, self.time_unit)
 
 
 def open(path, **options) -> NumpySource:  # noqa: A001 - the format-module interface

@@ -25,10 +25,22 @@ from dataclasses import dataclass
 
 from ..events import EventError
 
-__all__ = ["DATATYPE", "MAX_PACKET_BYTES", "MSGDEF", "EventPacket", "PacketError", "decode_packet",
+__all__ = ["DATATYPE", "HEADER_MSGDEFS", "MAX_PACKET_BYTES", "MSGDEF", "EventPacket", "PacketError", "decode_packet",
            "encode_packet"]
 
 DATATYPE = "event_camera_msgs/msg/EventPacket"
+
+# The dependencies every message with a `std_msgs/Header` carries in its ros2msg schema text.
+HEADER_MSGDEFS = """\
+================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
 
 # The ROS 2 message definition text (ros2msg schema encoding) with its dependencies, as `ros2 bag` stores it.
 MSGDEF = """\
@@ -40,15 +52,7 @@ uint64 time_base
 string encoding
 bool is_bigendian
 uint8[] events
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
+""" + HEADER_MSGDEFS
 
 MAX_PACKET_BYTES = 1 << 30  # a packet larger than 1 GiB is refused before anything is allocated
 MAX_STRING_BYTES = 1 << 16  # frame_id and encoding are short names
