@@ -28,14 +28,14 @@ class UsageError(Exception):
 # -- shared pieces ----------------------------------------------------------------------------------
 def _open(path: str, args=None):
     from sources import open_source
+    from sources._base import as_geometry
 
     options = {}
     if getattr(args, "geometry", None):
         try:
-            w, h = (int(v) for v in args.geometry.lower().split("x"))
-            options["geometry"] = Geometry(w, h)
-        except ValueError:
-            raise UsageError(f"--geometry {args.geometry}: expected WIDTHxHEIGHT, e.g. 640x480") from None
+            options["geometry"] = as_geometry(args.geometry)
+        except ValueError as e:
+            raise UsageError(f"--{e}") from None
     if getattr(args, "timestamps", None):
         options["timestamps"] = args.timestamps
     return open_source(path, **options)
@@ -47,17 +47,10 @@ def _add_source_flags(p) -> None:
                    help="what to do with timestamps that go back (default: the format's)")
 
 
-def _default_denoise(has_labels: bool) -> str:
-    stage_kinds = kinds("stage")
-    if "paper" in stage_kinds:
-        return "paper"
-    return "truth" if has_labels else "none"
-
-
 def _pipeline(args, source) -> Pipeline:
     if getattr(args, "pipeline", None):
         return Pipeline.from_toml(args.pipeline)
-    name = args.denoise or _default_denoise(getattr(source, "has_labels", False))
+    name = args.denoise or "paper"
     if name == "none":
         return Pipeline([])
     if name not in kinds("stage"):
@@ -66,10 +59,9 @@ def _pipeline(args, source) -> Pipeline:
 
 
 class Progress:
-    """One status line on a terminal (events, events/s, percent, noise fraction); silent when piped."""
+    """One status line on a terminal (events, events/s, noise fraction); silent when piped."""
 
-    def __init__(self, total: int | None, stream=sys.stderr):
-        self.total = total
+    def __init__(self, stream=sys.stderr):
         self.stream = stream
         self.enabled = stream.isatty()
         self._last = 0.0
@@ -83,9 +75,8 @@ class Progress:
         self.stream.flush()
 
     def _line(self, s: RunStats) -> str:
-        pct = f" {100 * s.events_in / self.total:5.1f}%" if self.total else ""
         noise = 1 - s.per_class[NoiseClass.SIGNAL] / s.events_in if s.events_in else 0.0
-        return f"{s.events_in:,} events{pct}  {s.throughput_hz / 1e6:.1f} M ev/s  noise {100 * noise:.1f}%"
+        return f"{s.events_in:,} events  {s.throughput_hz / 1e6:.1f} M ev/s  noise {100 * noise:.1f}%"
 
     def done(self) -> None:
         if self.enabled:
@@ -205,7 +196,7 @@ def cmd_replay(args) -> int:
         if out.web_url:
             print(f"web viewer: {out.web_url}", flush=True)
         lag = LagMeter(args.speed)
-        progress = Progress(total=None)
+        progress = Progress()
 
         def on_batch(batch):
             lag(batch)
@@ -303,7 +294,7 @@ def cmd_archive(args) -> int:
                     frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
                     packet_us=args.packet_us,
                     flush_s=args.flush_s, metadata=provenance, geometry=source.geometry)
-    progress = Progress(total=None)
+    progress = Progress()
     with _StopOnSignal() as stop:
         stats = pipeline.run(stop.chunks(paced(source, args.speed)), [sink], on_batch=progress)
     progress.done()
@@ -366,7 +357,7 @@ def cmd_frames(args) -> int:
             out_dir = Path(args.out) / kind if len(kinds_) > 1 else Path(args.out)
             writer = PngWriter(out_dir, style=args.style)
             sinks.append(writer)
-        progress = Progress(total=None)
+        progress = Progress()
 
         def on_batch(batch, fstats=fstats, progress=progress):
             fstats.add_frames(batch.frames)
