@@ -1,0 +1,88 @@
+"""Row-summed count maps: exact L×L box counts in one vector update and L reads.
+
+A map cell (row Y, column X) of a (H + 2r, W + 2r) padded map holds the count of events on row Y over
+the L = 2r + 1 columns X - r .. X + r. An event at (x, y) adds to the L contiguous cells of padded row
+y + r starting at column x (`row_add`); the L×L box count around (x, y) is the sum of L cells down
+padded column x + r from row y (`column_sum`). Both the coarse (density) and the fine (DC) stage keep
+their exact neighbourhood counts this way.
+
+`row_add` does its L cells as one unaligned read-modify-write of a 32-byte vector (8 int32 lanes or
+16 uint16 lanes): on the density filter this alone took 48 to 57 M events/s at 346×260. The map must
+therefore have one vector's worth of cells after its last row (`padded_map` adds them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
+
+VECTOR_BYTES = 32
+
+
+def lanes(dtype) -> int:
+    """Cells per vector update for a map of `dtype`."""
+    return VECTOR_BYTES // np.dtype(dtype).itemsize
+
+
+def padded_map(width: int, height: int, radius: int, dtype, planes: int = 1) -> np.ndarray:
+    """A zeroed flat map of `planes` × (height + 2r) × (width + 2r) cells plus one vector of tail."""
+    return np.zeros(planes * (height + 2 * radius) * (width + 2 * radius) + lanes(dtype), dtype)
+
+
+@intrinsic
+def _add_lanes(typingctx, a, pos, delta, n):
+    """a[pos : pos + n] += delta, n <= lanes, as one unaligned vector load, add and store."""
+    if not (isinstance(a, types.Array) and a.layout == "C" and isinstance(a.dtype, types.Integer)):
+        return None
+    dtype = a.dtype
+    width = VECTOR_BYTES // (dtype.bitwidth // 8)
+    sig = types.void(a, types.intp, dtype, types.intp)
+
+    def codegen(context, builder, signature, args):
+        ary, p, d, k = args
+        data = context.make_array(signature.args[0])(context, builder, ary).data
+        cell = context.get_value_type(dtype)
+        vec = ir.VectorType(cell, width)
+        ptr = builder.bitcast(builder.gep(data, [p]), vec.as_pointer())
+        zero = ir.Constant(cell, 0)
+        step = ir.Constant(vec, [0] * width)
+        for lane in range(width):  # [delta] * n + [0] * (width - n); folds when n is a constant
+            on = builder.icmp_signed(">", k, ir.Constant(k.type, lane))
+            step = builder.insert_element(step, builder.select(on, d, zero), ir.Constant(ir.IntType(32), lane))
+        builder.store(builder.add(builder.load(ptr, align=1), step), ptr, align=1)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _lanes_of(typingctx, a):
+    """Cells per vector of `a`'s dtype, as a compile-time constant (`a.itemsize` is read at run time)."""
+    width = VECTOR_BYTES // (a.dtype.bitwidth // 8)
+
+    def codegen(context, builder, signature, args):
+        return context.get_constant(types.intp, width)
+
+    return types.intp(a), codegen
+
+
+@njit(cache=True, nogil=True, inline="always")
+def row_add(a, pos, delta, L):
+    """a[pos : pos + L] += delta (vector by vector; `a` needs one vector of cells after pos + L)."""
+    width = _lanes_of(a)
+    if L <= width:  # the usual case (L <= 8); the test folds away when L is a compile-time constant
+        _add_lanes(a, pos, delta, L)
+    else:
+        for k in range(0, L, width):
+            _add_lanes(a, pos + k, delta, min(width, L - k))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def column_sum(a, q, stride, L):
+    """a[q] + a[q + stride] + ... (L cells down a column), as int64."""
+    total = np.int64(0)
+    for k in range(L):
+        total += a[q + k * stride]
+    return total
