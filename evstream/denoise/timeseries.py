@@ -17,6 +17,7 @@ at rate f sets a fraction 1 - exp(-f/fs) of the bins, so pixels slower than abou
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -26,86 +27,103 @@ from numba import njit
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
 from .base import InPlaceClassifier
+from .rowsum import column_sum, padded_map, row_add
 
 DIFFERENCE, RATIO = 0, 1
 
 
-@njit(cache=True, nogil=True, inline="always")
-def popcount64(v):
-    """Number of set bits of a uint64 (SWAR)."""
-    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return np.int64((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _aligned(mask, last_bin, b):
-    """A pixel's activity mask shifted so that bit 0 is bin b (bits age out after 64 bins)."""
-    shift = b - last_bin
-    if shift >= 64:
-        return np.uint64(0)
-    return mask << np.uint64(shift)
-
-
-@njit(cache=True, nogil=True)
-def dc_kernel(t, x, y, codes, noise_code, masks, last_bin, radius, bin_us, n_bins, lam, form, width, height,
-              want_score, out_score):
-    """For each event still SIGNAL in `codes`: update its pixel's activity, compare its DC with its
-    neighbours' mean, write `noise_code` when hot (and the score if `want_score`).
-
-    `masks`/`last_bin` are (H + 2r, W + 2r), padded with never-active cells, so the neighbourhood loop
-    needs no bounds checks; the neighbour count is clipped to the sensor arithmetically. The score is
-    DC_m - mean (difference form) or DC_m / mean (ratio form; inf when mean is 0). Without scores, the
-    difference form skips the neighbours when DC_m <= λ (the event cannot be hot).
-    """
-    window = (np.uint64(1) << np.uint64(n_bins)) - np.uint64(1) if n_bins < 64 else ~np.uint64(0)
+@functools.cache
+def dc_kernel(radius, form, want_score):
+    """The kernel compiled for one configuration (options as compile-time constants)."""
     L = 2 * radius + 1
-    lam_bins = lam * n_bins
-    b = np.int64(0)
-    bin_start = np.int64(1)  # [bin_start, bin_end) is bin b; empty until the first event
-    bin_end = np.int64(0)
-    for i in range(len(t)):
-        if codes[i] != 0:
-            continue
-        ti = t[i]
-        if ti >= bin_end or ti < bin_start:  # a division only when the bin changes
-            b = ti // bin_us
-            bin_start = b * bin_us
-            bin_end = bin_start + bin_us
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        cy = yi + radius
-        cx = xi + radius
-        m = (_aligned(masks[cy, cx], last_bin[cy, cx], b) | np.uint64(1)) & window
-        masks[cy, cx] = m
-        last_bin[cy, cx] = b
-        own = popcount64(m)
-        if form == DIFFERENCE and not want_score and own <= lam_bins:
-            continue  # DC_m <= λ: cannot be hot
-        active = 0
-        for dy in range(L):
-            for dx in range(L):
-                if dy != radius or dx != radius:
-                    nb = _aligned(masks[yi + dy, xi + dx], last_bin[yi + dy, xi + dx], b)
-                    active += popcount64(nb & window)
-        n_nb = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
-                * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1) - 1)
-        # decisions in whole bins (exact): DC_m - mean > λ  <=>  own·n_nb - active > λ·n·n_nb
-        if form == DIFFERENCE:
-            hot = own * n_nb - active > lam_bins * n_nb if n_nb > 0 else own > lam_bins
-        else:
-            hot = own * n_nb > lam * active if active > 0 else own > lam  # guard: quiet neighbours
-        if want_score:
-            dc = own / n_bins
-            mean = active / (n_nb * n_bins) if n_nb > 0 else 0.0
-            if form == DIFFERENCE:
-                score = dc - mean
-            else:
-                score = dc / mean if mean > 0 else np.inf
-        codes[i] = noise_code * hot
-        if want_score:
-            out_score[i] = score
+
+    @njit(cache=True, nogil=True)
+    def kernel(t, x, y, start, codes, noise_code, last_bin, count, rowsum, padded_width, fifo_pos, per_bin,
+               fifo_state, bin_us, n_bins, lam, width, height, out_score):
+        """For each event still SIGNAL in `codes` from `start`: mark its pixel active in the event's bin,
+        compare the pixel's active bins with its neighbours' mean, write `noise_code` when hot (and the
+        score if `want_score`). Returns the index reached: len(t) unless the FIFO is full.
+
+        State, indexed like the padded `rowsum` map: `last_bin` (the pixel's last active bin, modulo
+        2**32), `count` (its active bins among the last n), `rowsum` (row sums of `count` over L
+        columns, `rowsum` module); a FIFO of activations (`fifo_pos`, the cell's row position) with
+        `per_bin[k % n]` activations in bin k, expired when the bin leaves the window;
+        `fifo_state` = [head, size, current bin].
+        """
+        cap = len(fifo_pos)
+        mask = cap - 1
+        head = fifo_state[0]
+        size = fifo_state[1]
+        lam_bins = lam * n_bins
+        b = fifo_state[2]
+        bin_start = b * bin_us  # [bin_start, bin_end) is bin b
+        bin_end = bin_start + bin_us
+        n = len(t)
+        live = np.empty(n - start, np.int64)  # the events still SIGNAL, gathered without a branch:
+        k = 0  # skipping the others in the loop below mispredicts on every other event
+        for i in range(start, n):
+            live[k] = i
+            k += codes[i] == 0
+        j = 0
+        while j < k:
+            stop = min(k, j + cap - size)  # each event pushes at most one activation
+            if stop == j:
+                break
+            while j < stop:
+                i = live[j]
+                j += 1
+                ti = t[i]
+                if ti >= bin_end or ti < bin_start:  # a division (and expiry) only on a new bin
+                    nb = ti // bin_us
+                    for old in range(max(b - n_bins + 1, nb - n_bins - n_bins + 1), nb - n_bins + 1):
+                        k_old = old % n_bins  # bins b - n + 1 .. nb - n leave the window
+                        for _ in range(per_bin[k_old]):
+                            pos = fifo_pos[head]
+                            count[pos + radius] -= 1
+                            row_add(rowsum, pos, -1, L)
+                            head = (head + 1) & mask
+                            size -= 1
+                        per_bin[k_old] = 0
+                    b = nb
+                    bin_start = b * bin_us
+                    bin_end = bin_start + bin_us
+                xi = np.intp(x[i])
+                yi = np.intp(y[i])
+                pos = (yi + radius) * padded_width + xi  # the pixel's row of L cells in `rowsum`
+                c = pos + radius  # the pixel's own cell
+                # first event of this pixel in this bin: one more active bin (equal modulo 2**32 but no
+                # active bin in the window: the pixel was idle for 2**32 bins, the match is stale)
+                new = (last_bin[c] != np.uint32(b & 0xFFFFFFFF)) | (count[c] == 0)
+                last_bin[c] = b
+                own = np.int64(count[c]) + new
+                count[c] = own
+                row_add(rowsum, pos, new, L)  # branchless: delta 0 when the bin was already active
+                slot = (head + size) & mask
+                fifo_pos[slot] = pos
+                per_bin[b % n_bins] += new
+                size += new
+                active = column_sum(rowsum, yi * padded_width + xi + radius, padded_width, L) - own
+                n_nb = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
+                        * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1) - 1)
+                # decisions in whole bins (exact): DC_m - mean > λ  <=>  own·n_nb - active > λ·n·n_nb
+                if form == DIFFERENCE:
+                    hot = own * n_nb - active > lam_bins * n_nb if n_nb > 0 else own > lam_bins
+                else:
+                    hot = own * n_nb > lam * active if active > 0 else own > lam  # guard: quiet neighbours
+                codes[i] = noise_code * hot
+                if want_score:
+                    dc = own / n_bins
+                    mean = active / (n_nb * n_bins) if n_nb > 0 else 0.0
+                    if form == DIFFERENCE:
+                        out_score[i] = dc - mean
+                    else:
+                        out_score[i] = dc / mean if mean > 0 else np.inf
+        fifo_state[0] = head
+        fifo_state[1] = size
+        fifo_state[2] = b
+        return live[j] if j < k else n
+
+    return kernel
 
 
 @register("stage", "dc")
@@ -148,17 +166,37 @@ class TimeSeriesFilter(InPlaceClassifier):
         """History the filter needs before a hot pixel's DC is fully built: n / fs."""
         return self.n_bins * self.bin_us
 
+    def _init(self, g) -> dict:
+        r = self.radius_px
+        cells = len(padded_map(g.width, g.height, r, np.uint8))
+        cap = 1 << 12
+        return {"geometry": g, "last_bin": np.zeros(cells, np.uint32), "count": np.zeros(cells, np.uint8),
+                "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
+                "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64)}
+
+    def _grow(self, s: dict) -> None:
+        """Double the activation FIFO, unrolling the ring so that head is at 0."""
+        head, size = s["fifo_state"][:2]
+        cap = len(s["fifo_pos"])
+        order = (head + np.arange(size)) % cap
+        new = np.zeros(2 * cap, np.int32)
+        new[:size] = s["fifo_pos"][order]
+        s["fifo_pos"] = new
+        s["fifo_state"][:2] = (0, size)
+
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
         """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores."""
         s = self._state
         g = chunk.geometry
         if s is None or s["geometry"] != g:
-            r = self.radius_px
-            shape = (g.height + 2 * r, g.width + 2 * r)
-            s = self._state = {"geometry": g, "masks": np.zeros(shape, np.uint64),
-                               "last_bin": np.full(shape, np.iinfo(np.int64).min // 2, np.int64)}
+            s = self._state = self._init(g)
         score = np.zeros(len(chunk) if want_score else 0, np.float64)
-        dc_kernel(chunk.t, chunk.x, chunk.y, codes, int(self.noise_class), s["masks"], s["last_bin"],
-                  self.radius_px, self.bin_us, self.n_bins, float(self.lam),
-                  DIFFERENCE if self.form == "difference" else RATIO, g.width, g.height, want_score, score)
-        return score
+        kernel = dc_kernel(self.radius_px, DIFFERENCE if self.form == "difference" else RATIO, want_score)
+        i = 0
+        while True:
+            i = kernel(chunk.t, chunk.x, chunk.y, i, codes, int(self.noise_class), s["last_bin"], s["count"],
+                       s["rowsum"], g.width + 2 * self.radius_px, s["fifo_pos"], s["per_bin"], s["fifo_state"],
+                       self.bin_us, self.n_bins, float(self.lam), g.width, g.height, score)
+            if i >= len(chunk):
+                return score
+            self._grow(s)
