@@ -91,7 +91,7 @@ density_params = st.fixed_dictionaries({
 
 dc_params = st.fixed_dictionaries({
     "rate_hz": st.sampled_from([1000.0, 10_000.0, 250.0]),
-    "n_bins": st.sampled_from([1, 7, 63, 64]),
+    "n_bins": st.sampled_from([1, 7, 64, 200]),
     "lam": st.sampled_from([0.0, 0.05, 0.3]),
     "form": st.sampled_from(["difference", "ratio"]),
     "radius_px": st.integers(1, 2),
@@ -141,6 +141,16 @@ def test_dc_bins_are_anchored_at_time_zero_not_at_the_chunk():
     f = TimeSeriesFilter(rate_hz=250.0, n_bins=2, lam=0.0)
     _, score = f.classify_scored(ev)
     assert score.tolist() == [0.5, 1.0]  # bins 0 and 1: the second event sees two active bins of two
+
+
+def test_dc_sees_a_pixel_idle_for_2_to_the_32_bins_as_newly_active():
+    # the last active bin is kept modulo 2**32: an equal residue after a long idle must not hide the activation
+    g = Geometry(3, 3)
+    ev = EventChunk.from_arrays([0, 2**32, 2**32 + 1, 2**32 + 3], [1, 1, 0, 1], [1, 1, 0, 1], [1, 1, 1, 1], g)
+    f = TimeSeriesFilter(rate_hz=1e6, n_bins=4, lam=0.0)
+    _, score = f.classify_scored(ev)
+    assert np.allclose(score, dc_reference(ev, TimeSeriesFilter(rate_hz=1e6, n_bins=4, lam=0.0))[1])
+    assert score[1] == 0.25 and score[3] == 0.5 - 1 / 4 / 8  # one then two active bins of four
 
 
 @pytest.mark.parametrize("make", [
@@ -206,8 +216,8 @@ def test_density_rejects_bad_parameters(bad):
 
 
 @pytest.mark.parametrize("bad", [
-    {"rate_hz": 0}, {"rate_hz": 3.0}, {"n_bins": 65}, {"n_bins": 0}, {"lam": 1.5}, {"lam": -0.1},
-    {"form": "sum"}, {"radius_px": 0},
+    {"rate_hz": 0}, {"rate_hz": 3.0}, {"n_bins": 256}, {"n_bins": 0}, {"n_bins": 64.0}, {"lam": 1.5}, {"lam": -0.1},
+    {"form": "sum"}, {"radius_px": 0}, {"radius_px": 200, "n_bins": 200},
 ])
 def test_dc_rejects_bad_parameters(bad):
     with pytest.raises(ValueError):
