@@ -188,6 +188,19 @@ def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept():
     assert ((score >= 1) == (got == 0)).all()
 
 
+@pytest.mark.parametrize("make", [lambda: DensityFilter(window_us=500), lambda: TimeSeriesFilter(rate_hz=5000.0)])
+def test_after_an_earlier_stage_each_stage_judges_only_the_live_events(make):
+    from evstream.denoise.refractory import RefractoryFilter
+
+    s = random_stream(9, 2000, G)
+    first = RefractoryFilter(refractory_us=200)(s)
+    assert (first.cls != 0).any()
+    live = np.flatnonzero(first.cls == 0)
+    want = first.cls.copy()
+    want[live] = make().classify(s[live])
+    assert np.array_equal(make()(first).cls, want)
+
+
 def test_hot_pixels_are_found_and_signal_kept_on_a_synthetic_scene():
     from evstream.noise import NoiseSpec, inject
     from evstream.synth import scene
