@@ -63,6 +63,7 @@ def dc_kernel(radius, form, want_score):
         b = fifo_state[2]
         bin_start = b * bin_us  # [bin_start, bin_end) is bin b
         bin_end = bin_start + bin_us
+        b_slot = b % n_bins  # per_bin[b_slot] counts bin b's activations
         n = len(t)
         live = np.empty(n - start, np.int64)  # the events still SIGNAL, gathered without a branch:
         k = 0  # skipping the others in the loop below mispredicts on every other event
@@ -90,6 +91,7 @@ def dc_kernel(radius, form, want_score):
                             size -= 1
                         per_bin[k_old] = 0
                     b = nb
+                    b_slot = b % n_bins
                     bin_start = b * bin_us
                     bin_end = bin_start + bin_us
                 xi = np.intp(x[i])
@@ -105,7 +107,7 @@ def dc_kernel(radius, form, want_score):
                 row_add(rowsum, pos, new, L)  # branchless: delta 0 when the bin was already active
                 slot = (head + size) & mask
                 fifo_pos[slot] = pos
-                per_bin[b % n_bins] += new
+                per_bin[b_slot] += new
                 size += new
                 active = column_sum(rowsum, yi * padded_width + xi + radius, padded_width, L) - own
                 n_nb = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
