@@ -124,49 +124,39 @@ def render_mono8(frame: Frame) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _group_kernel(cls, t, x, y, p, n_classes, out_t, out_x, out_y, out_p, bounds):
-    """Stable partition of the events by class into the out arrays; `bounds[c]:bounds[c+1]` holds class c.
-
-    Returns the index of the first event whose class is >= n_classes, or -1.
-    """
-    n = len(cls)
-    counts = np.zeros(n_classes, np.int64)
-    for i in range(n):
-        c = cls[i]
-        if c >= n_classes:
-            return i
-        counts[c] += 1
-    bounds[0] = 0
-    for c in range(n_classes):
-        bounds[c + 1] = bounds[c] + counts[c]
-    pos = bounds[:n_classes].copy()
-    for i in range(n):
-        c = cls[i]
-        k = pos[c]
+def _gather_class(cls, c, t, x, y, p, out_t, out_x, out_y, out_p, start):
+    """Copy the events of class `c`, in stream order, to out[start:]; returns the end. Branch-free (the
+    classes interleave at random): every event is written, the end advances on a match, so the out
+    arrays need one spare cell past the last region."""
+    k = start
+    for i in range(len(cls)):
         out_t[k] = t[i]
         out_x[k] = x[i]
         out_y[k] = y[i]
         out_p[k] = p[i]
-        pos[c] = k + 1
-    return -1
+        k += cls[i] == c
+    return k
 
 
-def group_by_class(cls, t, x, y, p, n_classes: int):
-    """(bounds, t, x, y, p): the events grouped by class, stream order kept within a class.
+def group_by_class(cls, t, x, y, p, n_classes: int, classes=None):
+    """(bounds, t, x, y, p): the events of `classes` (default: all) grouped by class, stream order kept
+    within a class; `bounds[c]:bounds[c + 1]` holds class c (empty for classes not asked for).
 
-    `bounds` has n_classes + 1 entries; on an unknown class, bounds[-1] is that event's index instead.
+    Raises EventError naming the first event of an unknown class.
     """
     n = len(cls)
-    if n and not cls.any():  # all SIGNAL: no copy
-        bounds = np.zeros(n_classes + 1, np.int64)
-        bounds[1:] = n
-        return bounds, t, x, y, p
-    out = (np.empty(n, t.dtype), np.empty(n, x.dtype), np.empty(n, y.dtype), np.empty(n, p.dtype))
     bounds = np.zeros(n_classes + 1, np.int64)
-    bad = _group_kernel(cls, t, x, y, p, n_classes, *out, bounds)
-    if bad >= 0:
-        bounds[-1] = bad
-    return (bounds, *out)
+    if n and cls.max() >= n_classes:
+        bad = int(np.argmax(cls >= n_classes))
+        raise EventError(f"event {bad} has noise class {int(cls[bad])}; known classes are 0..{n_classes - 1}")
+    wanted = range(n_classes) if classes is None else {int(c) for c in classes}
+    if n and not cls.any():  # all SIGNAL: no copy
+        bounds[1:] = n if 0 in wanted else 0
+        return bounds, t, x, y, p
+    out = (np.empty(n + 1, t.dtype), np.empty(n + 1, x.dtype), np.empty(n + 1, y.dtype), np.empty(n + 1, p.dtype))
+    for c in range(n_classes):
+        bounds[c + 1] = _gather_class(cls, c, t, x, y, p, *out, bounds[c]) if c in wanted else bounds[c]
+    return (bounds, *(a[:n] for a in out))
 
 
 FRAME_FORMATS = ("foxglove", "ros2")
@@ -357,10 +347,11 @@ class McapSink:
         if cls is None:
             self._event_topics[NoiseClass.SIGNAL].add(chunk.t, chunk.x, chunk.y, chunk.p)
             return
-        bounds, t, x, y, p = group_by_class(cls, chunk.t, chunk.x, chunk.y, chunk.p, N_CLASSES)
-        if bounds[-1] != len(cls):
-            raise EventError(f"McapSink: event {int(bounds[-1])} has noise class {int(cls[bounds[-1]])}; "
-                             f"known classes are 0..{N_CLASSES - 1}")
+        try:
+            bounds, t, x, y, p = group_by_class(cls, chunk.t, chunk.x, chunk.y, chunk.p, N_CLASSES,
+                                                self._event_topics)
+        except EventError as e:
+            raise EventError(f"McapSink: {e}") from None
         for c, topic in self._event_topics.items():
             a, b = bounds[c], bounds[c + 1]
             topic.add(t[a:b], x[a:b], y[a:b], p[a:b])

@@ -19,7 +19,7 @@ from mcap_ros2.writer import Writer as Ros2Writer
 
 from evstream.codecs import evt3, mono
 from evstream.codecs.event_packet import DATATYPE, MSGDEF
-from evstream.events import EventChunk, Frame, Geometry, NoiseClass, concat
+from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass, concat
 from evstream.pipeline import Batch, Pipeline, RunStats
 from evstream.testing import random_bounds, random_stream, split
 from sinks.mcap_sink import McapSink, group_by_class, render_mono8, topics
@@ -77,10 +77,15 @@ def test_group_kernel_matches_reference(seed, n, noise_share):
     assert bounds.tolist() == want_bounds
     for g_, w in zip(got, want):
         assert g_.tolist() == w
+    only = group_by_class(cls, *arrays, 3, classes=[2])  # only the classes asked for are gathered
+    assert only[0].tolist() == [0, 0, 0, want_bounds[3] - want_bounds[2]]
+    for g_, w in zip(only[1:], want):
+        assert g_[: only[0][-1]].tolist() == w[want_bounds[2] :]
     if n:
         cls[n // 2] = 7
-        bounds, *_ = group_by_class(cls, *arrays, 3)
-        assert bounds[-1] == int(np.argmax(cls >= 3))  # the first unknown class is named
+        first = int(np.argmax(cls >= 3))
+        with pytest.raises(EventError, match=f"event {first} has noise class {cls[first]}"):
+            group_by_class(cls, *arrays, 3)  # the first unknown class is named
 
 
 # -- round trip ---------------------------------------------------------------------------------------------
