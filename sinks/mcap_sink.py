@@ -35,7 +35,6 @@ import time
 from typing import Any
 
 import mcap.writer
-import numba
 import numpy as np
 import zstandard
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
@@ -121,42 +120,6 @@ def render_mono8(frame: Frame) -> np.ndarray:
     out[signed > 0] = 255
     out[signed < 0] = 0
     return out
-
-
-@numba.njit(cache=True, nogil=True)
-def _gather_class(cls, c, t, x, y, p, out_t, out_x, out_y, out_p, start):
-    """Copy the events of class `c`, in stream order, to out[start:]; returns the end. Branch-free (the
-    classes interleave at random): every event is written, the end advances on a match, so the out
-    arrays need one spare cell past the last region."""
-    k = start
-    for i in range(len(cls)):
-        out_t[k] = t[i]
-        out_x[k] = x[i]
-        out_y[k] = y[i]
-        out_p[k] = p[i]
-        k += cls[i] == c
-    return k
-
-
-def group_by_class(cls, t, x, y, p, n_classes: int, classes=None):
-    """(bounds, t, x, y, p): the events of `classes` (default: all) grouped by class, stream order kept
-    within a class; `bounds[c]:bounds[c + 1]` holds class c (empty for classes not asked for).
-
-    Raises EventError naming the first event of an unknown class.
-    """
-    n = len(cls)
-    bounds = np.zeros(n_classes + 1, np.int64)
-    if n and cls.max() >= n_classes:
-        bad = int(np.argmax(cls >= n_classes))
-        raise EventError(f"event {bad} has noise class {int(cls[bad])}; known classes are 0..{n_classes - 1}")
-    wanted = range(n_classes) if classes is None else {int(c) for c in classes}
-    if n and not cls.any():  # all SIGNAL: no copy
-        bounds[1:] = n if 0 in wanted else 0
-        return bounds, t, x, y, p
-    out = (np.empty(n + 1, t.dtype), np.empty(n + 1, x.dtype), np.empty(n + 1, y.dtype), np.empty(n + 1, p.dtype))
-    for c in range(n_classes):
-        bounds[c + 1] = _gather_class(cls, c, t, x, y, p, *out, bounds[c]) if c in wanted else bounds[c]
-    return (bounds, *(a[:n] for a in out))
 
 
 FRAME_FORMATS = ("foxglove", "ros2")
@@ -344,17 +307,13 @@ class McapSink:
     def _route(self, chunk: EventChunk) -> None:
         """Hand each event to its class's topic (SIGNAL when unclassified; noise only with keep_noise)."""
         cls = chunk.cls
-        if cls is None:
-            self._event_topics[NoiseClass.SIGNAL].add(chunk.t, chunk.x, chunk.y, chunk.p)
-            return
-        try:
-            bounds, t, x, y, p = group_by_class(cls, chunk.t, chunk.x, chunk.y, chunk.p, N_CLASSES,
-                                                self._event_topics)
-        except EventError as e:
-            raise EventError(f"McapSink: {e}") from None
+        if cls is not None and len(cls) and cls.max() >= N_CLASSES:
+            bad = int(np.argmax(cls >= N_CLASSES))
+            raise EventError(f"McapSink: event {bad} has noise class {int(cls[bad])}; "
+                             f"known classes are 0..{N_CLASSES - 1}")
         for c, topic in self._event_topics.items():
-            a, b = bounds[c], bounds[c + 1]
-            topic.add(t[a:b], x[a:b], y[a:b], p[a:b])
+            ev = chunk.of_class(c)
+            topic.add(ev.t, ev.x, ev.y, ev.p)
 
     def _emit_cells(self, watermark: int) -> None:
         """Write the packets of every grid cell that the watermark has closed, cell by cell."""

@@ -130,7 +130,7 @@ class ZenohSink:
     def write(self, batch: Batch, *, source_time_ns: int | None = None) -> None:
         ev: EventChunk = batch.events
         if self.classes == "signal" and ev.cls is not None and len(ev):
-            ev = ev[ev.cls == NoiseClass.SIGNAL]
+            ev = ev.of_class(NoiseClass.SIGNAL)
         if len(ev):
             g = ev.geometry
             self.publisher.put_events(ev.t, ev.x, ev.y, ev.p, width=g.width, height=g.height,

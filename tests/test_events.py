@@ -94,3 +94,19 @@ def test_class_counts():
     assert c.class_counts("label").tolist() == [1, 0, 2]
     assert c.class_counts("cls") is None
     assert NoiseClass.HOT_PIXEL == 2
+
+
+@given(seed=st.integers(0, 2**32), n=st.integers(0, 400), labelled=st.booleans())
+def test_of_class_matches_a_boolean_mask(seed, n, labelled):
+    s = random_stream(seed, n)
+    cls = np.random.default_rng(seed).integers(0, 3, n).astype(np.uint8)
+    s = s.replace(cls=cls, label=s.label if labelled else None)
+    for c in NoiseClass:
+        got, want = s.of_class(c), s[cls == c]
+        for f in ("t", "x", "y", "p", "cls", "label"):
+            a, b = getattr(got, f), getattr(want, f)
+            assert (a is None and b is None) or np.array_equal(a, b), f
+            assert a is None or a.dtype == getattr(s, f).dtype
+        assert got.t_end == s.t_end and got.geometry == s.geometry
+    unclassified = s.replace(cls=None)
+    assert unclassified.of_class(NoiseClass.SIGNAL) is unclassified and len(unclassified.of_class(2)) == 0

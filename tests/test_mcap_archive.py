@@ -22,7 +22,7 @@ from evstream.codecs.event_packet import DATATYPE, MSGDEF
 from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass, concat
 from evstream.pipeline import Batch, Pipeline, RunStats
 from evstream.testing import random_bounds, random_stream, split
-from sinks.mcap_sink import McapSink, group_by_class, render_mono8, topics
+from sinks.mcap_sink import McapSink, render_mono8, topics
 from sources import mcap_log, open_source
 
 G = Geometry(64, 48)
@@ -53,39 +53,13 @@ def assert_same(got: EventChunk, want: EventChunk, with_cls=True):
         np.testing.assert_array_equal(got.cls, want.cls)
 
 
-# -- the routing kernel -------------------------------------------------------------------------------------
-def group_reference(cls, arrays, n_classes):
-    """Plain Python: events of class 0, then 1, ..., stream order kept within a class."""
-    rows = list(zip(cls.tolist(), *(a.tolist() for a in arrays)))
-    bounds = [0]
-    out = []
-    for c in range(n_classes):
-        mine = [r[1:] for r in rows if r[0] == c]
-        out += mine
-        bounds.append(bounds[-1] + len(mine))
-    return bounds, [list(col) for col in zip(*out)] if out else [[], [], [], []]
-
-
-@given(st.integers(0, 10_000), st.integers(0, 500), st.floats(0, 1))
-def test_group_kernel_matches_reference(seed, n, noise_share):
-    rng = np.random.default_rng(seed)
-    cls = np.where(rng.random(n) < noise_share, rng.integers(1, 3, n), 0).astype(np.uint8)
-    arrays = (np.sort(rng.integers(0, 10**6, n)).astype(np.int64), rng.integers(0, 346, n).astype(np.uint16),
-              rng.integers(0, 260, n).astype(np.uint16), rng.integers(0, 2, n).astype(np.uint8))
-    bounds, *got = group_by_class(cls, *arrays, 3)
-    want_bounds, want = group_reference(cls, arrays, 3)
-    assert bounds.tolist() == want_bounds
-    for g_, w in zip(got, want):
-        assert g_.tolist() == w
-    only = group_by_class(cls, *arrays, 3, classes=[2])  # only the classes asked for are gathered
-    assert only[0].tolist() == [0, 0, 0, want_bounds[3] - want_bounds[2]]
-    for g_, w in zip(only[1:], want):
-        assert g_[: only[0][-1]].tolist() == w[want_bounds[2] :]
-    if n:
-        cls[n // 2] = 7
-        first = int(np.argmax(cls >= 3))
-        with pytest.raises(EventError, match=f"event {first} has noise class {cls[first]}"):
-            group_by_class(cls, *arrays, 3)  # the first unknown class is named
+def test_an_unknown_class_is_refused_by_name(tmp_path):
+    s = classified(1, 50)
+    cls = s.cls.copy()
+    cls[20] = 7
+    sink = McapSink(tmp_path / "a.mcap", frames=False)
+    with pytest.raises(EventError, match="event 20 has noise class 7"):
+        sink.write(Batch(s.replace(cls=cls), [], RunStats()))
 
 
 # -- round trip ---------------------------------------------------------------------------------------------

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
 
@@ -32,7 +30,7 @@ class KeepSignal:
     def __call__(self, chunk: EventChunk) -> EventChunk:
         if chunk.cls is None:
             return chunk
-        return chunk[np.flatnonzero(chunk.cls == NoiseClass.SIGNAL)]
+        return chunk.of_class(NoiseClass.SIGNAL)
 
     def params(self) -> dict:
         return {}
