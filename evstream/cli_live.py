@@ -406,8 +406,13 @@ def _warm_up(args) -> None:
     PacketDecoder(absolute=False).decode(decode_packet(data))
     pipeline = _pipeline(args, None)
     _attach_framer(pipeline, args)
-    pipeline.process(EventChunk.from_arrays(t, x, y, p, g))
+    pipeline.process(EventChunk.from_arrays(t, x, y, p, g)).events.of_class(0)
     pipeline.finish(g)
+    # the sinks a camera opens on its first packet (their imports alone take ~50 ms each)
+    if getattr(args, "republish", None):
+        import sinks.zenoh_pub  # noqa: F401
+    if getattr(args, "archive", None):
+        import sinks.mcap_sink  # noqa: F401
 
 
 def _wait_readers(session, keyexpr: str, timeout_s: float) -> bool:
