@@ -466,6 +466,8 @@ def _print_summary(s: dict) -> None:
                      f"hot pixel {c['events_hot_pixel']:,}")
         if "latency_p50_ms" in c:
             line += f"; latency p50 {c['latency_p50_ms']:.1f} ms, p99 {c['latency_p99_ms']:.1f} ms"
+            if "latency_warm_p99_ms" in c:
+                line += f" (after the first second: p99 {c['latency_warm_p99_ms']:.1f} ms)"
         print(line)
         if c.get("published_packets"):
             print(f"    republished {c['published_events']:,} events in {c['published_packets']:,} packets")

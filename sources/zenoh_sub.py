@@ -62,6 +62,9 @@ def camera_of(key: str) -> str:
     return "_".join(parts) or "camera"
 
 
+WARM_S = 1.0  # latency percentiles are also given without the first second (the chain's start-up)
+
+
 @dataclass
 class CameraStats:
     """What one camera's stream did: packets and events taken, sequence gaps, bad packets, restarts."""
@@ -78,6 +81,8 @@ class CameraStats:
     ended: bool = False
     segment_events: list[int] = field(default_factory=lambda: [0])  # events between restarts
     latencies_ms: list[float] = field(default_factory=list)  # receive time - source time, per packet
+    warm_index: int | None = None  # first latency of a packet received >= WARM_S after the first one
+    first_receive_s: float | None = None
     first_seq: int | None = None
     last_seq: int | None = None
     last_t: int | None = None
@@ -91,7 +96,22 @@ class CameraStats:
             lat = np.asarray(self.latencies_ms)
             out.update(latency_p50_ms=float(np.percentile(lat, 50)), latency_p99_ms=float(np.percentile(lat, 99)),
                        latency_max_ms=float(lat.max()))
+            if self.warm_index is not None:  # steady state: without the chain's start-up
+                warm = lat[self.warm_index :]
+                out.update(latency_warm_p50_ms=float(np.percentile(warm, 50)),
+                           latency_warm_p99_ms=float(np.percentile(warm, 99)))
         return out
+
+    def add_latency(self, latency_ms: float, now_s: float) -> None:
+        if self.first_receive_s is None:
+            self.first_receive_s = now_s
+        if self.warm_index is None and now_s - self.first_receive_s >= WARM_S:
+            self.warm_index = len(self.latencies_ms)
+        self.latencies_ms.append(latency_ms)
+        if len(self.latencies_ms) > 1_000_000:  # bounded: keep the recent half
+            del self.latencies_ms[:500_000]
+            if self.warm_index is not None:
+                self.warm_index = max(0, self.warm_index - 500_000)
 
 
 @dataclass
@@ -238,9 +258,7 @@ class ZenohSubscription:
         st.bytes += n
         st.segment_events[-1] += len(t)
         if kind == OURS and source_ns is not None:
-            st.latencies_ms.append((now_ns() - source_ns) * 1e-6)
-            if len(st.latencies_ms) > 1_000_000:  # bounded: keep the recent half
-                del st.latencies_ms[:500_000]
+            st.add_latency((now_ns() - source_ns) * 1e-6, time.monotonic())
         return LivePacket(camera, key, chunk, seq, source_ns, restart)
 
     def _track_seq(self, st: CameraStats, seq: int) -> bool:
