@@ -59,9 +59,11 @@ def _pipeline(args, source) -> Pipeline:
 
 
 class Progress:
-    """One status line on a terminal (events, events/s, noise fraction); silent when piped."""
+    """One status line on a terminal (percent of the file where the reader knows it, events, events/s,
+    noise fraction); silent when piped."""
 
-    def __init__(self, stream=sys.stderr):
+    def __init__(self, source=None, stream=sys.stderr):
+        self.source = source
         self.stream = stream
         self.enabled = stream.isatty()
         self._last = 0.0
@@ -76,7 +78,9 @@ class Progress:
 
     def _line(self, s: RunStats) -> str:
         noise = 1 - s.per_class[NoiseClass.SIGNAL] / s.events_in if s.events_in else 0.0
-        return f"{s.events_in:,} events  {s.throughput_hz / 1e6:.1f} M ev/s  noise {100 * noise:.1f}%"
+        fraction = getattr(self.source, "fraction_read", None)
+        done = f"{100 * fraction:3.0f}%  " if fraction is not None else ""
+        return f"{done}{s.events_in:,} events  {s.throughput_hz / 1e6:.1f} M ev/s  noise {100 * noise:.1f}%"
 
     def done(self) -> None:
         if self.enabled:
@@ -196,7 +200,7 @@ def cmd_replay(args) -> int:
         if out.web_url:
             print(f"web viewer: {out.web_url}", flush=True)
         lag = LagMeter(args.speed)
-        progress = Progress()
+        progress = Progress(source)
 
         def on_batch(batch):
             lag(batch)
@@ -294,7 +298,7 @@ def cmd_archive(args) -> int:
                     frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
                     packet_us=args.packet_us,
                     flush_s=args.flush_s, metadata=provenance, geometry=source.geometry)
-    progress = Progress()
+    progress = Progress(source)
     with _StopOnSignal() as stop:
         stats = pipeline.run(stop.chunks(paced(source, args.speed)), [sink], on_batch=progress)
     progress.done()
@@ -357,7 +361,7 @@ def cmd_frames(args) -> int:
             out_dir = Path(args.out) / kind if len(kinds_) > 1 else Path(args.out)
             writer = PngWriter(out_dir, style=args.style)
             sinks.append(writer)
-        progress = Progress()
+        progress = Progress(source)
 
         def on_batch(batch, fstats=fstats, progress=progress):
             fstats.add_frames(batch.frames)

@@ -148,6 +148,7 @@ class FileSource:
         self.geometry: Geometry | None = self.geometry_override
         self.geometry_source = "option" if self.geometry_override else None
         self.file_size = os.path.getsize(self.path)
+        self.fraction_read: float | None = None  # how far into the file decoding has got (0..1), if known
         self.details: dict = {}
         self.counters: dict = {}
         self.dropped = 0
@@ -163,6 +164,7 @@ class FileSource:
         step = max(1, self.block_bytes // 16)
         for a in range(0, n_events, step):
             b = min(a + step, n_events)
+            self.fraction_read = b / n_events
             yield to_events(self, cols["t"][a:b], cols["x"][a:b], cols["y"][a:b], cols["p"][a:b], time_unit)
 
     def set_geometry(self, g: Geometry | None, source: str) -> None:
@@ -200,6 +202,8 @@ class FileSource:
                 continue
             self._check_coords(block, offset + queue.n)
             queue.push(block)
+            if block.byte_end:
+                self.fraction_read = min(1.0, block.byte_end / max(1, self.file_size))
             while True:
                 if self.chunk_us is None:
                     if queue.n <= self.chunk_events:

@@ -147,6 +147,7 @@ class Hdf5Source(FileSource):
         for a in range(0, self.n_events, step):
             b = min(a + step, self.n_events)
             block = to_events(self, *(self._col(k, a, b) for k in "txyp"), self.time_unit)
+            self.fraction_read = b / self.n_events
             if self.t_offset_us:
                 block.t += self.t_offset_us
             yield block

@@ -56,6 +56,7 @@ class _Scan:
         self.messages = 0
         self.stopped_at: int | None = None
         self.reason = ""
+        self.fraction = 0.0  # bytes read / file size
 
 
 def _records(path: str, scan: _Scan) -> Iterator:
@@ -68,6 +69,7 @@ def _records(path: str, scan: _Scan) -> Iterator:
             offset = f.tell()
             try:
                 rec = next(it)
+                scan.fraction = f.tell() / max(1, size)
             except StopIteration:
                 return
             except Exception as e:  # mcap raises several kinds at a cut record: EndOfFile, struct.error, ...
@@ -108,6 +110,7 @@ class McapLogSource:
         if self.chunk_events <= 0:
             raise ValueError("chunk_events must be positive")
         self.meta: dict = {}
+        self._scan: _Scan | None = None
         self.truncated = False
         self.recovered_messages = 0
         self.recovered_events = 0
@@ -144,7 +147,7 @@ class McapLogSource:
 
     def _first_packet(self):
         """Read up to the first selected packet: channels, evstream metadata, the sensor size."""
-        scan = _Scan()
+        scan = self._scan = _Scan()
         schemas: dict[int, Schema] = {}
         selected: dict[int, NoiseClass | None] = {}
         skipped: set[str] = set()
@@ -174,8 +177,13 @@ class McapLogSource:
         return {"format": self.format, "path": self.path, "meta": self.meta, "archive": self.archive,
                 "truncated": self.truncated, "recovered_messages": self.recovered_messages}
 
+    @property
+    def fraction_read(self) -> float | None:
+        """How far into the file reading has got (0..1), once iteration started."""
+        return None if self._scan is None else self._scan.fraction
+
     def __iter__(self) -> Iterator[EventChunk]:
-        scan = _Scan()
+        scan = self._scan = _Scan()
         schemas: dict[int, Schema] = {}
         selected: dict[int, NoiseClass | None] = {}
         skipped: set[str] = set()

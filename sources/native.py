@@ -70,6 +70,7 @@ class NativeSource:
                 raise
             raise EventError(f"{self.path}: unreadable native file: {e}") from None
         self.has_labels = "label" in files
+        self.fraction_read: float | None = None  # share of the events read so far
         self.chunk_events = int(chunk_events)
         self.chunk_us = chunk_us
         self.timestamps = timestamps
@@ -103,6 +104,7 @@ class NativeSource:
                 self._t[a:b], arrays["x"][a:b], arrays["y"][a:b], arrays["p"][a:b], self.geometry,
                 label=arrays["label"][a:b] if self.has_labels else None, t_end=t_end,
             )
+            self.fraction_read = b / n if n else 1.0
             yield check(chunk)
 
 

@@ -76,3 +76,20 @@ def test_synth_then_replay_writes_rrd(tmp_path, capsys):
     stats = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert stats["events_background"] > 0 and stats["events_signal"] > 0
     assert rrd.stat().st_size > 10_000
+
+
+def test_progress_line_gives_the_percent_of_the_file(tmp_path):
+    from evstream.cli import Progress
+    from evstream.pipeline import RunStats
+
+    path = tmp_path / "r.npz"
+    native.save(path, random_stream(3, 10_000))
+    src = open_source(path, chunk_events=2_500)
+    progress, stats = Progress(src), RunStats()
+    lines = []
+    for chunk in src:
+        stats.add(chunk, 0)
+        lines.append(progress._line(stats))
+    assert [line.split("%")[0].strip() for line in lines] == ["25", "50", "75", "100"]
+    assert lines[-1].split("%", 1)[1].strip().startswith("10,000 events")
+    assert "%" not in Progress(None)._line(stats).split("noise")[0]  # a source that cannot tell: no percent

@@ -57,8 +57,16 @@ def _event(c, i):
 def test_real_file_decodes_as_sources_md_says(real_data, name):
     fmt, geom, n, span, on, first, last = REAL[name]
     src = open_source(real_data / name, chunk_events=20_000)
-    chunks = list(src)
+    chunks, read = [], []
+    for c in src:
+        chunks.append(c)
+        read.append(src.fraction_read)
     ev = concat(chunks, src.geometry)
+    # how far into the file (the progress line's percent): rising to the whole file, or unknown (AEDAT4)
+    if fmt == "aedat4":
+        assert set(read) == {None}
+    else:
+        assert read == sorted(read) and 0 < read[0] and read[-1] == pytest.approx(1.0, abs=1e-4)
     assert src.format == fmt and str(src.geometry) == geom and not src.has_labels
     assert len(ev) == n
     assert int(ev.t[-1] - ev.t[0]) == span
