@@ -177,7 +177,7 @@ def cmd_replay(args) -> int:
     from sinks.rerun_sink import RerunSink
     from sinks.rerun_viewer import has_display, open_output
 
-    outputs = [o for o in ("save", "spawn", "serve", "connect") if getattr(args, o)]
+    outputs = [o for o in ("save", "spawn", "serve", "viewer") if getattr(args, o)]
     if len(outputs) > 1:
         raise UsageError(f"--{outputs[0]} and --{outputs[1]}: choose one place for the Rerun output")
     if args.point_budget < 0:
@@ -191,7 +191,7 @@ def cmd_replay(args) -> int:
             spawn = True
         else:
             save = str(Path("out") / (Path(args.source).stem + ".rrd"))
-    out = open_output(save=save, spawn=spawn, serve=args.serve, connect=args.connect, bind=args.bind,
+    out = open_output(save=save, spawn=spawn, serve=args.serve, connect=args.viewer, bind=args.bind,
                       memory_limit=args.memory_limit)
     try:
         sink = RerunSink(out.rec, geometry=source.geometry, framer=getattr(pipeline.framer, "kind", None),
@@ -539,7 +539,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--spawn", action="store_true", help="open the desktop viewer (default with a display)")
     p.add_argument("--serve", action="store_true",
                    help="serve the web viewer (for a remote or headless machine) until Ctrl-C")
-    p.add_argument("--connect", metavar="URL", help="log to a running viewer (rerun+http://HOST:PORT/proxy)")
+    p.add_argument("--viewer", "--connect", dest="viewer", metavar="URL",
+                   help="log to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
     p.add_argument("--bind", metavar="ADDR", default="127.0.0.1",
                    help="address --serve and --spawn listen on (default 127.0.0.1; 0.0.0.0 = all interfaces)")
     p.add_argument("--memory-limit", metavar="SIZE", default="25%",

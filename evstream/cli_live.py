@@ -6,7 +6,7 @@ subscribe takes `KEYEXPR` (wildcards: one pipeline per camera) into any sink: th
 router    runs a Zenoh router that cameras and nodes on several machines meet through.
 
 Every session listens and connects only where told (loopback by default), multicast scouting off.
-`--connect` here names a Zenoh endpoint (in `replay` it names a Rerun viewer).
+`--connect` here names a Zenoh endpoint; a running Rerun viewer is `--viewer URL` (as in `replay`).
 """
 
 from __future__ import annotations
@@ -263,7 +263,7 @@ def cmd_subscribe(args) -> int:
     from .cli import UsageError, _StopOnSignal
 
     _check_endpoints(args)
-    viewer_flags = [o for o in ("save", "spawn", "serve") if getattr(args, o)]
+    viewer_flags = [o for o in ("save", "spawn", "serve", "viewer") if getattr(args, o)]
     if len(viewer_flags) > 1:
         raise UsageError(f"--{viewer_flags[0]} and --{viewer_flags[1]}: choose one place for the Rerun output")
     if args.archive and not args.archive.endswith(".mcap"):
@@ -279,19 +279,18 @@ def cmd_subscribe(args) -> int:
     flow = args.flow or ("ring" if viewer_flags and not (args.archive or args.republish) else "block")
     geometry = None
     if args.geometry:
-        from .events import Geometry
+        from sources._base import as_geometry
 
         try:
-            w, h = (int(v) for v in args.geometry.lower().split("x"))
-            geometry = Geometry(w, h)
-        except ValueError:
-            raise UsageError(f"--geometry {args.geometry}: expected WIDTHxHEIGHT, e.g. 640x480") from None
+            geometry = as_geometry(args.geometry)
+        except ValueError as e:
+            raise UsageError(f"--geometry: {e}") from None
     node = Subscriber(args)
     if viewer_flags:
         from sinks.rerun_viewer import open_output
 
-        node.viewer = open_output(save=args.save, spawn=args.spawn, serve=args.serve, bind=args.bind,
-                                  memory_limit=args.memory_limit)
+        node.viewer = open_output(save=args.save, spawn=args.spawn, serve=args.serve, connect=args.viewer,
+                                  bind=args.bind, memory_limit=args.memory_limit)
         if node.viewer.web_url:
             print(f"web viewer: {node.viewer.web_url}", flush=True)
     session = _session(args)
@@ -528,6 +527,7 @@ def add_parsers(sub, add_source_flags, add_pipeline_flags, add_framer_flags) -> 
     p.add_argument("--save", metavar="OUT.rrd", help="write a Rerun recording")
     p.add_argument("--spawn", action="store_true", help="open the desktop viewer")
     p.add_argument("--serve", action="store_true", help="serve the web viewer until Ctrl-C")
+    p.add_argument("--viewer", metavar="URL", help="log to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
     p.add_argument("--bind", metavar="ADDR", default="127.0.0.1", help="address --serve/--spawn listen on")
     p.add_argument("--memory-limit", metavar="SIZE", default="25%", help="viewer memory (--spawn/--serve)")
     p.add_argument("--point-budget", type=int, default=1_000_000, metavar="N",

@@ -326,3 +326,39 @@ def test_viewer_save_per_camera_and_frames_republished(procs, tmp_path):
     for name in paths:
         entities = {c.entity_path for c in RrdReader(tmp_path / name).stream()}
         assert "/events/signal" in entities
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # a viewer's --save stream has none
+def test_subscribe_logs_into_a_running_viewer(procs, tmp_path):
+    """`subscribe --viewer URL` logs into a Rerun viewer that is already running: here the wheel's own
+    `rerun`, listening on loopback and saving what it receives, read back afterwards."""
+    from rerun.chunk import RrdReader
+
+    from sinks.rerun_viewer import is_listening, rerun_binary
+
+    rr_port, port = free_port(), free_port()
+    received = tmp_path / "received.rrd"
+    viewer = subprocess.Popen([rerun_binary(), "--bind", "127.0.0.1", "--port", str(rr_port), "--save", str(received)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while not is_listening("127.0.0.1", rr_port) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        ep = f"tcp/127.0.0.1:{port}"
+        procs.router(port)
+        sub = procs.subscriber(port, "evstream/*/events", "--viewer", f"rerun+http://127.0.0.1:{rr_port}/proxy",
+                               "--flow", "block", "--until-end", "--idle-s", "40")
+        procs.result(procs.start("publish", str(BAR), "--key", "evstream/cam1/events", "--connect", ep, "--speed", "0",
+                                 "--wait-subscribers", "10", "--json"))
+        out = procs.result(sub)
+    finally:
+        viewer.send_signal(signal.SIGINT)  # the receiver finishes its file
+        viewer.wait(timeout=20)
+    assert out["output"] == "connect" and out["cameras"]["cam1"]["events"] == 174_999
+    points = 0
+    for chunk in RrdReader(received).stream():
+        if chunk.entity_path.startswith("/events/") and not chunk.is_static:
+            rb = chunk.to_record_batch()
+            if "Points3D:positions" in rb.schema.names:
+                points += sum(len(row) for row in rb.column(rb.schema.names.index("Points3D:positions")).to_pylist())
+    assert points == 174_999  # every event of the 0.3 s recording is under the point budget
