@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint recordings clean
+.PHONY: demo test bench lint recordings clean clean-cache
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -30,5 +30,9 @@ recordings: $(STAMP)
 	$(BIN)/evstream synth ball recordings/ball.npz --duration-ms 1000 --noise-ratio 0.5 --seed 2
 	$(BIN)/evstream synth bar recordings/bar.npz --duration-ms 500 --noise-ratio 0.5 --seed 3
 
-clean:
+clean: clean-cache
 	rm -rf $(VENV) out .pytest_cache
+
+# numba's compiled kernels (its cache misses edits to a helper another module's kernel inlined)
+clean-cache:
+	find . -path ./$(VENV) -prune -o \( -name '*.nbi' -o -name '*.nbc' \) -exec rm -f {} +
