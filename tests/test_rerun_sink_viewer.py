@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import os
-import selectors
+import select
 import shutil
 import signal
 import subprocess
@@ -123,21 +123,24 @@ def test_spawned_viewer_listens_on_loopback_and_renders_the_stream(tmp_path, mon
         xvfb.wait(timeout=10)
 
 
-def _read_json_line(proc: subprocess.Popen, timeout_s: float) -> dict:
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
+def read_json_line(proc: subprocess.Popen, timeout_s: float) -> dict:
+    """The child's JSON summary line, read from its stdout pipe unbuffered: a buffered readline behind
+    select can keep the line in Python's buffer while select waits on an empty pipe. Fails (never
+    hangs) when no line comes: a serving replay does not exit on its own."""
+    fd, seen = proc.stdout.fileno(), b""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if not sel.select(timeout=0.5):
-            if proc.poll() is not None:
+        for line in seen.split(b"\n")[:-1]:
+            if line.startswith(b"{"):
+                return json.loads(line)
+        if select.select([fd], [], [], 0.5)[0]:
+            chunk = os.read(fd, 1 << 16)
+            if not chunk:
                 break
-            continue
-        line = proc.stdout.readline()
-        if line.startswith("{"):
-            return json.loads(line)
-        if not line:
+            seen += chunk
+        elif proc.poll() is not None:
             break
-    raise AssertionError(f"no JSON summary from the replay; stderr: {proc.stderr.read()[-2000:]}")
+    raise AssertionError(f"no JSON summary within {timeout_s:.0f} s (exit {proc.poll()}): {seen[-2000:]!r}")
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
@@ -148,7 +151,7 @@ def test_serve_listens_on_loopback_only_and_accepts_a_local_connection(tmp_path,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
     )
     try:
-        summary = _read_json_line(proc, 60)
+        summary = read_json_line(proc, 60)
         assert summary["output"] == "serve" and summary["events_in"] == 254_078
         grpc_port = int(summary["grpc_url"].rsplit(":", 1)[1].split("/")[0])
         web_port = int(summary["web_url"].split("://", 1)[1].split("/")[0].rsplit(":", 1)[1])

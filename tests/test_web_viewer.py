@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_rerun_sink_viewer import TURNTABLE, assert_shows_three_classes, listeners
+from test_rerun_sink_viewer import TURNTABLE, assert_shows_three_classes, listeners, read_json_line
 
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
 pytestmark = pytest.mark.skipif(CHROMIUM is None or shutil.which("bash") is None,
@@ -157,25 +157,6 @@ def shows_three_classes(png: Path) -> bool:
     return True
 
 
-def read_summary(replay: subprocess.Popen, timeout_s: float) -> dict:
-    """The replay's JSON summary line from its binary stdout pipe (read unbuffered: a buffered readline
-    behind select can hold the line in Python's buffer while select waits on an empty pipe)."""
-    fd, seen = replay.stdout.fileno(), b""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        for line in seen.split(b"\n")[:-1]:
-            if line.startswith(b"{"):
-                return json.loads(line)
-        if select.select([fd], [], [], 0.5)[0]:
-            chunk = os.read(fd, 1 << 16)
-            if not chunk:
-                break
-            seen += chunk
-        elif replay.poll() is not None:
-            break
-    raise AssertionError(f"no JSON summary from the replay within {timeout_s:.0f} s (exit {replay.poll()}): {seen!r}")
-
-
 def test_served_web_viewer_renders_the_three_classes_in_headless_chromium(tmp_path):
     # Ctrl-C, unless this run ignores SIGINT (started in the background by a non-interactive shell): the
     # replay inherits that, so it gets SIGTERM, which it handles the same way.
@@ -187,7 +168,7 @@ def test_served_web_viewer_renders_the_three_classes_in_headless_chromium(tmp_pa
     )
     browser = None
     try:
-        summary = read_summary(replay, 60)
+        summary = read_json_line(replay, 60)
         assert summary["output"] == "serve" and summary["events_hot_pixel"] > 0
         web_url = summary["web_url"]
         web_port = int(web_url.split("://", 1)[1].split("/")[0].rsplit(":", 1)[1])
