@@ -122,6 +122,16 @@ def test_density_fifo_grows_past_its_initial_capacity():
     assert np.allclose(score[:300], ref) and (codes == 0).all()
 
 
+def test_dc_activation_fifo_grows_past_its_initial_capacity():
+    # 9,000 events on 432 pixels within one window of 200 bins: ~8,000 activations held at once
+    s = random_stream(2, 9_000, G, mean_dt_us=0.02)
+    make = lambda: TimeSeriesFilter(rate_hz=1e6, n_bins=200, lam=0.05)  # noqa: E731
+    f = make()
+    got = np.concatenate([f.classify_scored(c)[1] for c in split(s, [0, 3_000, 9_000])])
+    assert len(f._state["fifo_pos"]) > 4096 and f._state["fifo_state"][1] > 4096
+    assert np.allclose(got, dc_reference(s, make())[1])
+
+
 @given(st.integers(0, 2**32), st.integers(0, 250), dc_params)
 def test_dc_kernel_matches_brute_force(seed, n, params):
     s = random_stream(seed, n, G, mean_dt_us=params["n_bins"] * 1e6 / params["rate_hz"] / 40)
