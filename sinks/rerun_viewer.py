@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import quote
@@ -66,6 +67,17 @@ def is_listening(host: str, port: int, timeout_s: float = 0.2) -> bool:
             return True
     except OSError:
         return False
+
+
+def _check_viewer(url: str) -> None:
+    """Refuse a viewer URL nothing listens at, at once (the SDK would retry for seconds, then drop
+    everything logged): ValueError with the reason."""
+    parsed = urllib.parse.urlsplit(url)
+    if not parsed.scheme.startswith("rerun") or not parsed.hostname:
+        raise ValueError(f"viewer URL {url!r}: expected rerun+http://HOST:PORT/proxy")
+    port = parsed.port or DEFAULT_GRPC_PORT
+    if not is_listening(parsed.hostname, port, timeout_s=2.0):
+        raise ValueError(f"no Rerun viewer listening at {url} (start one with `rerun`, or use --spawn)")
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -136,6 +148,7 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
         rec.save(save)
         return RerunOutput(rec, "save", path=save)
     if connect:
+        _check_viewer(connect)
         rec.connect_grpc(connect)
         return RerunOutput(rec, "connect", grpc_url=connect)
     exe = rerun_binary()

@@ -261,3 +261,21 @@ def test_cli_default_without_display_writes_rrd_and_says_how_to_open(tmp_path, m
 def test_cli_two_outputs_is_a_usage_error(tmp_path, capsys):
     assert main(["replay", "whatever.npz", "--save", str(tmp_path / "x.rrd"), "--spawn"]) == 2
     assert "choose one" in capsys.readouterr().err
+
+
+def test_cli_viewer_url_nothing_listens_at_is_a_clear_error(tmp_path, capsys):
+    import time
+
+    from sinks.rerun_viewer import free_port
+    from sources import native
+
+    src = tmp_path / "r.npz"
+    native.save(src, random_stream(1, 100))
+    url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
+    t0 = time.monotonic()
+    assert main(["replay", str(src), "--denoise", "none", "--viewer", url]) == 1
+    assert time.monotonic() - t0 < 10  # at once, not after the SDK's retries
+    assert capsys.readouterr().err.strip() == (f"evstream: error: no Rerun viewer listening at {url} "
+                                               "(start one with `rerun`, or use --spawn)")
+    assert main(["replay", str(src), "--connect", "http://nowhere"]) == 1
+    assert "expected rerun+http://HOST:PORT/proxy" in capsys.readouterr().err
