@@ -34,13 +34,6 @@ def density_reference(s: EventChunk, f: DensityFilter):
         t, x, y, p = int(s.t[m]), int(s.x[m]), int(s.y[m]), int(s.p[m])
         in_window = [j for j in range(m) if t - f.window_us < s.t[j] <= t]
         g = sum(1 for j in in_window if not f.match_polarity or s.p[j] == p)
-        ref_area = w * h  # the reference: the whole sensor, or the event's grid cell
-        if f.reference == "grid":
-            c = f.grid_px
-            cx, cy = x // c, y // c
-            g = sum(1 for j in in_window if int(s.x[j]) // c == cx and int(s.y[j]) // c == cy
-                    and (not f.match_polarity or s.p[j] == p))
-            ref_area = (min(c, w - cx * c)) * (min(c, h - cy * c))
         n = sum(1 for j in in_window
                 if abs(int(s.x[j]) - x) <= r and abs(int(s.y[j]) - y) <= r and (not f.match_polarity or s.p[j] == p))
         if f.clip_border:
@@ -52,8 +45,8 @@ def density_reference(s: EventChunk, f: DensityFilter):
             score.append(n / (area * f.window_us * 1e-6))
         else:
             gg = 2 * g if f.match_polarity else g
-            keep.append(n >= max(1.0, f.rho_rel * area * gg / ref_area))
-            mean_count = area * gg / ref_area  # the score: density relative to the reference's mean
+            keep.append(n >= max(1.0, f.rho_rel * area * gg / (w * h)))
+            mean_count = area * gg / (w * h)  # the score: density relative to the sensor's mean
             score.append(n / mean_count if mean_count > 0 else (math.inf if n > 0 else 0.0))
     return np.array(keep, bool), np.array(score)
 
@@ -94,8 +87,6 @@ density_params = st.fixed_dictionaries({
     "rho_rel": st.sampled_from([0.0, 0.5, 1.0, 3.0]),
     "match_polarity": st.booleans(),
     "clip_border": st.booleans(),
-    "reference": st.sampled_from(["sensor", "grid"]),
-    "grid_px": st.sampled_from([1, 5, 8, 32]),
 })
 
 dc_params = st.fixed_dictionaries({
@@ -127,11 +118,6 @@ def test_density_fifo_grows_past_its_initial_capacity():
     f = DensityFilter(window_us=10**9, mode="absolute", density_hz=0.0)
     codes, score = f.classify_scored(s)
     assert len(f._state["fifo_t"]) >= 20_000 and f._state["fifo_state"][1] == 20_000
-    grid = DensityFilter(window_us=10**9, reference="grid", grid_px=5)  # its cells' FIFO grows alongside
-    _, grid_score = grid.classify_scored(s)
-    assert len(grid._state["fifo_cell"]) == len(grid._state["fifo_t"]) >= 20_000
-    assert np.allclose(grid_score[:300], density_reference(s[:300], DensityFilter(window_us=10**9,
-                                                                                reference="grid", grid_px=5))[1])
     keep, ref = density_reference(s[:300], DensityFilter(window_us=10**9, mode="absolute", density_hz=0.0))
     assert np.allclose(score[:300], ref) and (codes == 0).all()
 
@@ -180,7 +166,6 @@ def test_dc_sees_a_pixel_idle_for_2_to_the_32_bins_as_newly_active():
 @pytest.mark.parametrize("make", [
     lambda: DensityFilter(window_us=500), lambda: DensityFilter(mode="absolute", window_us=2000),
     lambda: DensityFilter(match_polarity=True, clip_border=True, window_us=300),
-    lambda: DensityFilter(reference="grid", grid_px=8, match_polarity=True, window_us=400),
     lambda: TimeSeriesFilter(rate_hz=10_000.0), lambda: PaperCascade(coarse={"window_us": 800},
                                                                     fine={"rate_hz": 5000.0}),
 ])
@@ -246,7 +231,7 @@ def test_hot_pixels_are_found_and_signal_kept_on_a_synthetic_scene():
 
 @pytest.mark.parametrize("bad", [
     {"radius_px": -1}, {"radius_px": 1.5}, {"window_us": 0}, {"mode": "fuzzy"}, {"density_hz": -1},
-    {"rho_rel": float("nan")}, {"reference": "local"}, {"grid_px": 0}, {"grid_px": 8.0},
+    {"rho_rel": float("nan")},
 ])
 def test_density_rejects_bad_parameters(bad):
     with pytest.raises(ValueError):

@@ -36,17 +36,15 @@ ABSOLUTE, RELATIVE = 0, 1
 
 
 @functools.cache
-def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_live, grid_px=0):
+def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_live):
     """The kernel compiled for one configuration: the options are compile-time constants, so the
     per-event loop carries no option branches and L-cell loops unroll (+13 % over runtime flags).
-    `all_live`: no event is rejected yet (the usual first stage), so none is tested (+7–13 %).
-    `grid_px` > 0: the relative reference is the event's grid cell of grid_px × grid_px, not the sensor."""
+    `all_live`: no event is rejected yet (the usual first stage), so none is tested (+7–13 %)."""
     L = 2 * radius + 1
 
     @njit(cache=True, nogil=True)
     def kernel(t, x, y, p, start, codes, noise_code, hsum, padded_width, fifo_t, fifo_pos, fifo_state,
-               per_pol, cell_count, cell_area, fifo_cell, window_us, density_hz, rho_rel, width, height,
-               out_score):
+               per_pol, window_us, density_hz, rho_rel, width, height, out_score):
         """Classify events `start..` whose code is SIGNAL (others are skipped: an earlier stage rejected
         them), writing `noise_code` into `codes` for those in sparse neighbourhoods and, if `want_score`,
         the score into `out_score`. Returns the index reached: len(t) unless the FIFO is full (the
@@ -55,8 +53,6 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
         `hsum` is a row-summed count map (`rowsum`) of the window's events: one plane, or one per
         polarity with `match_polarity`. `fifo_pos` holds where each window event was added;
         `fifo_state` = [head, size]; `per_pol` counts the window's events per plane (g per polarity).
-        With a grid: `cell_count` the window's events per (plane, cell), `cell_area` each cell's pixels,
-        `fifo_cell` the cell of each window event.
         """
         cap = len(fifo_t)
         mask = cap - 1
@@ -66,8 +62,6 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
         per_area_abs = density_hz * window_s  # absolute: keep iff N >= D_th · area · Δt
         per_area_rel = rho_rel / (width * height)  # relative: keep iff N >= max(1, ρ_rel · area · g / (W·H))
         plane = (height + 2 * radius) * padded_width
-        cells_w = (width + grid_px - 1) // grid_px if grid_px else 1
-        n_cells = cells_w * ((height + grid_px - 1) // grid_px) if grid_px else 1
         i = start
         n = len(t)
         while i < n:
@@ -85,8 +79,6 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                     row_add(hsum, pos, -1, L)
                     if match_polarity:
                         per_pol[1 if pos >= plane else 0] -= 1
-                    if grid_px:
-                        cell_count[fifo_cell[head]] -= 1
                     head = (head + 1) & mask
                     size -= 1
                 xi = np.intp(x[i])
@@ -99,32 +91,22 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                     area = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
                             * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1))
                 g = per_pol[pl] * 2 if match_polarity else size
-                ref_per_px = g / (width * height)  # the reference density, events per pixel in the window
-                if grid_px:
-                    cell = (yi // grid_px) * cells_w + xi // grid_px
-                    slot_cell = pl * n_cells + cell
-                    ref_per_px = cell_count[slot_cell] * (2 if match_polarity else 1) / cell_area[cell]
                 if mode == ABSOLUTE:
                     threshold = per_area_abs * area - 1e-9  # compare counts: no rounding flips
-                elif grid_px:
-                    threshold = max(1.0, rho_rel * area * ref_per_px)
                 else:
                     threshold = max(1.0, per_area_rel * area * g)
                 codes[i] = noise_code * (total < threshold)  # branchless: the outcome is data-dependent
                 if want_score:
                     if mode == ABSOLUTE:
                         out_score[i] = total / (area * window_s)
-                    else:  # density relative to the reference's mean: keep iff >= rho_rel (and N >= 1)
-                        mean_count = area * ref_per_px
+                    else:  # density relative to the sensor's mean: keep iff >= rho_rel (and N >= 1)
+                        mean_count = area * g / (width * height)
                         out_score[i] = total / mean_count if mean_count > 0 else (np.inf if total > 0 else 0.0)
                 pos = corner + radius * padded_width
                 row_add(hsum, pos, 1, L)
                 slot = (head + size) & mask
                 fifo_t[slot] = ti
                 fifo_pos[slot] = pos
-                if grid_px:
-                    fifo_cell[slot] = slot_cell
-                    cell_count[slot_cell] += 1
                 if match_polarity:
                     per_pol[pl] += 1
                 size += 1
@@ -155,8 +137,6 @@ class DensityFilter(InPlaceClassifier):
     rho_rel: float = 1.5
     match_polarity: bool = False
     clip_border: bool = False
-    reference: str = "sensor"
-    grid_px: int = 32
     noise_class = NoiseClass.BACKGROUND
     _state: dict | None = field(default=None, init=False, repr=False)
 
@@ -171,10 +151,6 @@ class DensityFilter(InPlaceClassifier):
             raise ValueError(f"density_hz must be a finite number >= 0, got {self.density_hz}")
         if not self.rho_rel >= 0 or not math.isfinite(self.rho_rel):
             raise ValueError(f"rho_rel must be a finite number >= 0, got {self.rho_rel}")
-        if self.reference not in ("sensor", "grid"):
-            raise ValueError(f"reference must be 'sensor' or 'grid', got {self.reference!r}")
-        if not isinstance(self.grid_px, int) or self.grid_px < 1:
-            raise ValueError(f"grid_px must be an integer >= 1, got {self.grid_px!r}")
 
     @property
     def n_threshold(self) -> int:
@@ -193,28 +169,14 @@ class DensityFilter(InPlaceClassifier):
             "fifo_pos": np.zeros(cap, np.int64),
             "fifo_state": np.zeros(2, np.int64),
             "per_pol": np.zeros(2, np.int64),
-            **self._grid_state(g, cap),
         }
-
-    def _grid_state(self, g, cap: int) -> dict:
-        """Per-cell window counts, cell areas and the FIFO's cells (empty unless reference="grid")."""
-        if self.reference != "grid":
-            return {"cell_count": np.zeros(0, np.int64), "cell_area": np.zeros(0), "fifo_cell": np.zeros(0, np.int32)}
-        c = self.grid_px
-        widths = np.minimum(c, g.width - np.arange(0, g.width, c))
-        heights = np.minimum(c, g.height - np.arange(0, g.height, c))
-        area = np.outer(heights, widths).ravel().astype(np.float64)
-        return {"cell_count": np.zeros((2 if self.match_polarity else 1) * len(area), np.int64),
-                "cell_area": area, "fifo_cell": np.zeros(cap, np.int32)}
 
     def _grow(self, s: dict) -> None:
         """Double the FIFO, unrolling the ring so that head is at 0."""
         head, size = s["fifo_state"]
         cap = len(s["fifo_t"])
         order = (head + np.arange(size)) % cap
-        for k in ("fifo_t", "fifo_pos", "fifo_cell"):
-            if k == "fifo_cell" and self.reference != "grid":
-                continue
+        for k in ("fifo_t", "fifo_pos"):
             new = np.zeros(2 * cap, s[k].dtype)
             new[:size] = s[k][order]
             s[k] = new
@@ -229,15 +191,13 @@ class DensityFilter(InPlaceClassifier):
         score = np.zeros(n if want_score else 0, np.float64)
         g = chunk.geometry
         kernel = density_kernel(self.radius_px, ABSOLUTE if self.mode == "absolute" else RELATIVE,
-                                self.match_polarity, self.clip_border, want_score, not codes.any(),
-                                self.grid_px if self.reference == "grid" and self.mode == "relative" else 0)
+                                self.match_polarity, self.clip_border, want_score, not codes.any())
         i = 0
         while True:
             i = kernel(
                 chunk.t, chunk.x, chunk.y, chunk.p, i, codes, int(self.noise_class), s["hsum"],
                 g.width + 2 * self.radius_px, s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["per_pol"],
-                s["cell_count"], s["cell_area"], s["fifo_cell"], self.window_us, float(self.density_hz),
-                float(self.rho_rel), g.width, g.height, score,
+                self.window_us, float(self.density_hz), float(self.rho_rel), g.width, g.height, score,
             )
             if i >= n:
                 return score
