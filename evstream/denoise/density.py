@@ -29,8 +29,8 @@ from numba import njit
 
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
-from .base import InPlaceClassifier
-from .rowsum import column_sum, padded_map, row_add
+from .base import InPlaceClassifier, grow_fifo
+from .rowsum import box_area, column_sum, padded_map, row_add
 
 ABSOLUTE, RELATIVE = 0, 1
 
@@ -88,8 +88,7 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                 total = column_sum(hsum, corner + radius, padded_width, L)
                 area = L * L
                 if clip_border:
-                    area = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
-                            * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1))
+                    area = box_area(xi, yi, radius, width, height)
                 g = per_pol[pl] * 2 if match_polarity else size
                 if mode == ABSOLUTE:
                     threshold = per_area_abs * area - 1e-9  # compare counts: no rounding flips
@@ -171,17 +170,6 @@ class DensityFilter(InPlaceClassifier):
             "per_pol": np.zeros(2, np.int64),
         }
 
-    def _grow(self, s: dict) -> None:
-        """Double the FIFO, unrolling the ring so that head is at 0."""
-        head, size = s["fifo_state"]
-        cap = len(s["fifo_t"])
-        order = (head + np.arange(size)) % cap
-        for k in ("fifo_t", "fifo_pos"):
-            new = np.zeros(2 * cap, s[k].dtype)
-            new[:size] = s[k][order]
-            s[k] = new
-        s["fifo_state"][:] = (0, size)
-
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
         """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores."""
         s = self._state
@@ -201,4 +189,4 @@ class DensityFilter(InPlaceClassifier):
             )
             if i >= n:
                 return score
-            self._grow(s)
+            grow_fifo(s, ("fifo_t", "fifo_pos"))

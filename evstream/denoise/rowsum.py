@@ -80,6 +80,13 @@ def row_add(a, pos, delta, L):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def box_area(x, y, radius, width, height):
+    """Pixels of the (2r + 1)² box around (x, y) that lie on the width × height sensor."""
+    return ((min(x + radius, width - 1) - max(x - radius, 0) + 1)
+            * (min(y + radius, height - 1) - max(y - radius, 0) + 1))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def column_sum(a, q, stride, L):
     """a[q] + a[q + stride] + ... (L cells down a column), as int64."""
     total = np.int64(0)

@@ -31,8 +31,8 @@ from numba import njit
 
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
-from .base import InPlaceClassifier
-from .rowsum import column_sum, padded_map, row_add
+from .base import InPlaceClassifier, grow_fifo
+from .rowsum import box_area, column_sum, padded_map, row_add
 
 DIFFERENCE, RATIO = 0, 1
 
@@ -81,7 +81,7 @@ def dc_kernel(radius, form, want_score):
                 ti = t[i]
                 if ti >= bin_end or ti < bin_start:  # a division (and expiry) only on a new bin
                     nb = ti // bin_us
-                    for old in range(max(b - n_bins + 1, nb - n_bins - n_bins + 1), nb - n_bins + 1):
+                    for old in range(max(b - n_bins + 1, nb - 2 * n_bins + 1), nb - n_bins + 1):
                         k_old = old % n_bins  # bins b - n + 1 .. nb - n leave the window
                         for _ in range(per_bin[k_old]):
                             pos = fifo_pos[head]
@@ -110,8 +110,7 @@ def dc_kernel(radius, form, want_score):
                 per_bin[b_slot] += new
                 size += new
                 active = column_sum(rowsum, yi * padded_width + xi + radius, padded_width, L) - own
-                n_nb = ((min(xi + radius, width - 1) - max(xi - radius, 0) + 1)
-                        * (min(yi + radius, height - 1) - max(yi - radius, 0) + 1) - 1)
+                n_nb = box_area(xi, yi, radius, width, height) - 1
                 # decisions in whole bins (exact): DC_m - mean > λ  <=>  own·n_nb - active > λ·n·n_nb
                 if form == DIFFERENCE:
                     hot = own * n_nb - active > lam_bins * n_nb if n_nb > 0 else own > lam_bins
@@ -184,16 +183,6 @@ class TimeSeriesFilter(InPlaceClassifier):
                 "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
                 "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64)}
 
-    def _grow(self, s: dict) -> None:
-        """Double the activation FIFO, unrolling the ring so that head is at 0."""
-        head, size = s["fifo_state"][:2]
-        cap = len(s["fifo_pos"])
-        order = (head + np.arange(size)) % cap
-        new = np.zeros(2 * cap, np.int32)
-        new[:size] = s["fifo_pos"][order]
-        s["fifo_pos"] = new
-        s["fifo_state"][:2] = (0, size)
-
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
         """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores."""
         s = self._state
@@ -209,4 +198,4 @@ class TimeSeriesFilter(InPlaceClassifier):
                        self.bin_us, self.n_bins, float(self.lam), g.width, g.height, score)
             if i >= len(chunk):
                 return score
-            self._grow(s)
+            grow_fifo(s, ("fifo_pos",))
