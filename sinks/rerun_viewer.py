@@ -15,10 +15,9 @@ import socket
 import subprocess
 import sys
 import time
-import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 import rerun as rr
 
@@ -72,7 +71,7 @@ def is_listening(host: str, port: int, timeout_s: float = 0.2) -> bool:
 def _check_viewer(url: str) -> None:
     """Refuse a viewer URL nothing listens at, at once (the SDK would retry for seconds, then drop
     everything logged): ValueError with the reason."""
-    parsed = urllib.parse.urlsplit(url)
+    parsed = urlsplit(url)
     if not parsed.scheme.startswith("rerun") or not parsed.hostname:
         raise ValueError(f"viewer URL {url!r}: expected rerun+http://HOST:PORT/proxy")
     port = parsed.port or DEFAULT_GRPC_PORT
