@@ -20,7 +20,7 @@ from evstream.noise import NoiseSpec, inject
 from evstream.pipeline import Pipeline, build, paced
 from evstream.synth import scene
 from sinks.rerun_sink import RerunSink
-from sinks.rerun_viewer import free_port, is_listening, open_output, rerun_binary
+from sinks.rerun_viewer import free_port, open_output, rerun_binary, wait_listening
 from sources import native
 
 from .common import peak_rss_mb, report
@@ -68,13 +68,12 @@ def run() -> None:
                    dropped=f"{sink.points_dropped:,}", rrd_MB=f"{(d / 'a.rrd').stat().st_size / 1e6:.0f}")
         # into a local gRPC server (what --serve and --spawn talk to), bound to 127.0.0.1
         port = free_port()
-        server = subprocess.Popen([rerun_binary(), "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port),
-                                   "--server-memory-limit", "2GiB"],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        log = Path(d) / "rerun-server.log"
+        with open(log, "wb") as out:
+            server = subprocess.Popen([rerun_binary(), "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port),
+                                       "--server-memory-limit", "2GiB"], stdout=out, stderr=subprocess.STDOUT)
         try:
-            deadline = time.monotonic() + 20
-            while not is_listening("127.0.0.1", port) and time.monotonic() < deadline:
-                time.sleep(0.05)
+            wait_listening(server, "127.0.0.1", [port], 20.0, log)
             url = f"rerun+http://127.0.0.1:{port}/proxy"
             stats, sink, _, wall = _replay(rec, open_output(connect=url), 0, 50_000, point_budget_hz=1e6)
             report("sink -> gRPC server, budget 1 M points/s", n / wall,

@@ -90,7 +90,9 @@ def _port_or_free(host: str, port: int) -> int:
     return free_port(host) if is_listening(_connect_host(host), port) else port
 
 
-def _wait_listening(proc: subprocess.Popen, host: str, ports: list[int], timeout_s: float, log: Path) -> None:
+def wait_listening(proc: subprocess.Popen, host: str, ports: list[int], timeout_s: float, log: Path) -> None:
+    """Wait until the rerun process `proc` listens on every port; OSError (with its log's last line)
+    when it exits first or does not listen in time."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -166,7 +168,7 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
                 start_new_session=True,  # the viewer outlives the replay
                 env={**os.environ, "RERUN_APP_ONLY": "true"},
             )
-        _wait_listening(proc, host, [grpc_port], 30.0, log)
+        wait_listening(proc, host, [grpc_port], 30.0, log)
         rec.connect_grpc(url)
         return RerunOutput(rec, "spawn", process=proc, grpc_url=url)
     # serve: a gRPC server buffering the stream plus the web viewer, both on `bind`
@@ -181,7 +183,7 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
             env={**os.environ, "RERUN_APP_ONLY": "true"},
             preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
         )
-    _wait_listening(proc, host, [grpc_port, web_port], 30.0, log)
+    wait_listening(proc, host, [grpc_port, web_port], 30.0, log)
     grpc_url = f"rerun+http://{host}:{grpc_port}/proxy"
     shown = socket.gethostname() if host != bind else host
     web_url = f"http://{shown}:{web_port}/?url={quote(f'rerun+http://{shown}:{grpc_port}/proxy', safe='')}"

@@ -334,16 +334,15 @@ def test_subscribe_logs_into_a_running_viewer(procs, tmp_path):
     `rerun`, listening on loopback and saving what it receives, read back afterwards."""
     from rerun.chunk import RrdReader
 
-    from sinks.rerun_viewer import is_listening, rerun_binary
+    from sinks.rerun_viewer import rerun_binary, wait_listening
 
     rr_port, port = free_port(), free_port()
-    received = tmp_path / "received.rrd"
-    viewer = subprocess.Popen([rerun_binary(), "--bind", "127.0.0.1", "--port", str(rr_port), "--save", str(received)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    received, log = tmp_path / "received.rrd", tmp_path / "rerun.log"
+    with open(log, "wb") as out:
+        viewer = subprocess.Popen([rerun_binary(), "--bind", "127.0.0.1", "--port", str(rr_port), "--save",
+                                   str(received)], stdout=out, stderr=subprocess.STDOUT)
     try:
-        deadline = time.monotonic() + 30
-        while not is_listening("127.0.0.1", rr_port) and time.monotonic() < deadline:
-            time.sleep(0.1)
+        wait_listening(viewer, "127.0.0.1", [rr_port], 30.0, log)
         ep = f"tcp/127.0.0.1:{port}"
         procs.router(port)
         sub = procs.subscriber(port, "evstream/*/events", "--viewer", f"rerun+http://127.0.0.1:{rr_port}/proxy",
