@@ -11,6 +11,7 @@ import builtins
 import json
 import os
 import zipfile
+import zlib
 from collections.abc import Iterable, Iterator
 
 import numpy as np
@@ -20,6 +21,8 @@ from evstream.events import EventChunk, EventError, Geometry, Validator, concat
 NAME = "native (.npz)"
 FORMAT = "native"
 DEFAULT_CHUNK_EVENTS = 50_000
+# What numpy's lazy .npz members raise on a damaged file (a bad CRC, a broken deflate stream, a cut member).
+ZIP_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
 
 
 def probe(head: bytes, path: str) -> bool:
@@ -65,7 +68,7 @@ class NativeSource:
             self.geometry = geometry or Geometry(int(self._npz["width"]), int(self._npz["height"]))
             self.meta = json.loads(str(self._npz["meta"])) if "meta" in files else {}
             self._t = self._npz["t"]
-        except (OSError, ValueError, zipfile.BadZipFile, KeyError) as e:
+        except ZIP_ERRORS as e:
             if isinstance(e, EventError):
                 raise
             raise EventError(f"{self.path}: unreadable native file: {e}") from None
@@ -91,7 +94,10 @@ class NativeSource:
 
     def __iter__(self) -> Iterator[EventChunk]:
         z = self._npz
-        arrays = {k: z[k] for k in ("x", "y", "p", *(["label"] if self.has_labels else []))}
+        try:  # members are decompressed here, on first use: a corrupt one shows only now
+            arrays = {k: z[k] for k in ("x", "y", "p", *(["label"] if self.has_labels else []))}
+        except ZIP_ERRORS as e:
+            raise EventError(f"{self.path}: unreadable native file: {type(e).__name__}: {e}") from None
         n = len(self._t)
         for k, a in arrays.items():
             if len(a) != n:

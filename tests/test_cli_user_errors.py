@@ -1,0 +1,43 @@
+"""Mistakes users make, through the command line: damaged files, wrong flags, wrong pipeline files.
+The rule: one line on stderr naming the file (and where it can, the byte) and the reason, exit code 1
+(runtime) or 2 (usage); never an "internal error", a traceback or silently lost data."""
+
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from evstream.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ROOT / "recordings" / "bar.npz"
+
+
+def run(argv, capsys):
+    """(exit code, stdout, stderr) of one `evstream` command run in this process."""
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def one_line_error(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert "internal error" not in lines[0] and "Traceback" not in err, lines[0]
+    return lines[0]
+
+
+@pytest.mark.parametrize("member", ["t.npy", "x.npy", "y.npy", "p.npy", "label.npy"])
+def test_native_npz_with_a_damaged_member_is_a_one_line_error(tmp_path, capsys, member):
+    data = bytearray(SHIPPED.read_bytes())
+    with zipfile.ZipFile(SHIPPED) as z:
+        info = z.getinfo(member)
+    start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+    for k in range(8):  # flip bytes spread over the member's compressed data
+        data[start + (k + 1) * info.compress_size // 10] ^= 0x5A
+    bad = tmp_path / "bar.npz"
+    bad.write_bytes(bytes(data))
+    rc, _, err = run(["info", bad], capsys)
+    assert rc == 1
+    line = one_line_error(err)
+    assert str(bad) in line and "unreadable native file" in line
