@@ -8,6 +8,7 @@ hint. A new file format is one new module here with a `probe(head: bytes, path) 
 from __future__ import annotations
 
 import os
+import zipfile
 
 from evstream.events import EventError
 
@@ -37,6 +38,9 @@ def open_source(uri: str | os.PathLike, **options):
     for fmt in FORMATS:
         if fmt.probe(head, path):
             return fmt.open(path, **options)
+    if head.startswith(b"PK\x03\x04") and not zipfile.is_zipfile(path):  # an .npz cut short: say so
+        raise EventError(f"{path}: truncated or corrupt zip (.npz): no zip directory before the file ends at "
+                         f"byte {os.path.getsize(path)}")
     known = ", ".join(fmt.NAME for fmt in FORMATS)
     raise EventError(f"{path}: unrecognised format (first bytes {head[:8]!r}); readable formats: {known}")
 

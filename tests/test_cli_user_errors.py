@@ -41,3 +41,15 @@ def test_native_npz_with_a_damaged_member_is_a_one_line_error(tmp_path, capsys, 
     assert rc == 1
     line = one_line_error(err)
     assert str(bad) in line and "unreadable native file" in line
+
+
+@pytest.mark.parametrize("fraction", [0.13, 0.5, 0.97])
+def test_native_npz_cut_short_says_truncated_not_unknown_format(tmp_path, capsys, fraction):
+    data = SHIPPED.read_bytes()
+    bad = tmp_path / "bar.npz"
+    bad.write_bytes(data[: int(len(data) * fraction)])
+    rc, _, err = run(["replay", bad, "--save", tmp_path / "x.rrd"], capsys)
+    assert rc == 1
+    line = one_line_error(err)
+    assert str(bad) in line and "truncated" in line and f"byte {bad.stat().st_size}" in line
+    assert "unrecognised format" not in line
