@@ -10,6 +10,7 @@ import argparse
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -626,9 +627,22 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning (a truncated file, dropped events) as one line for the user, not Python's
+    `path.py:123: EventWarning: ...` plus a line of our source code."""
+    print(f"evstream: warning: {message}", file=sys.stderr if file is None else file)
+
+
 def main(argv=None) -> int:
     ap = parser()
     args = ap.parse_args(argv)  # exits 2 on usage errors
+    with warnings.catch_warnings():  # restores the caller's warning display afterwards
+        if not args.debug:
+            warnings.showwarning = _show_warning
+        return _run(args)
+
+
+def _run(args) -> int:
     try:
         return args.func(args)
     except UsageError as e:

@@ -53,3 +53,17 @@ def test_native_npz_cut_short_says_truncated_not_unknown_format(tmp_path, capsys
     line = one_line_error(err)
     assert str(bad) in line and "truncated" in line and f"byte {bad.stat().st_size}" in line
     assert "unrecognised format" not in line
+
+
+@pytest.mark.parametrize("name, cut", [("prophesee_gen41_hd_evt3_expelliarmus.raw", 309_029),
+                                       ("dvxplorer_320x240_tonic.aedat4", 474_630),
+                                       ("nmnist_sample.bin", 10_818)])
+def test_a_truncated_recording_warns_in_one_line_and_keeps_the_events_before(tmp_path, capsys, real_data,
+                                                                               name, cut):
+    cut_file = tmp_path / name
+    cut_file.write_bytes((real_data / name).read_bytes()[:cut])
+    rc, out, err = run(["info", cut_file], capsys)
+    assert rc == 0 and "events" in out
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err  # not Python's "file.py:123: EventWarning: ..." plus a line of our code
+    assert lines[0].startswith("evstream: warning: ") and name in lines[0] and "truncated" in lines[0]
