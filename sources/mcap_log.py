@@ -80,7 +80,11 @@ def _records(path: str, scan: _Scan) -> Iterator:
             if isinstance(rec, Chunk):
                 try:
                     inner = breakup_chunk(rec, validate_crc=True)
-                except Exception as e:  # a cut or damaged chunk: zstd, lz4 or CRC errors
+                except Exception as e:  # a damaged chunk: zstd, lz4 or CRC errors
+                    if f.tell() < size:  # the file goes on: damage in the middle, not a writer cut short
+                        raise EventError(f"{path} at byte {offset}: damaged MCAP chunk ({_reason(e)}) with "
+                                         f"{size - f.tell()} more bytes after it; `mcap recover` rewrites "
+                                         "the file without it") from None
                     scan.stopped_at, scan.reason = offset, _reason(e)
                     return
                 yield from inner

@@ -67,3 +67,43 @@ def test_a_truncated_recording_warns_in_one_line_and_keeps_the_events_before(tmp
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1, err  # not Python's "file.py:123: EventWarning: ..." plus a line of our code
     assert lines[0].startswith("evstream: warning: ") and name in lines[0] and "truncated" in lines[0]
+
+
+def _chunk_spans(path):
+    """(start, end, compressed records' start) of every MCAP chunk, by mcap's own stream reader."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    spans = []
+    with open(path, "rb") as f:
+        reader = StreamReader(f, emit_chunks=True)
+        start = f.tell()
+        for rec in reader.records:
+            if isinstance(rec, Chunk):
+                spans.append((start, f.tell(), f.tell() - len(rec.data)))
+            start = f.tell()
+    return spans
+
+
+def test_an_archive_damaged_in_the_middle_is_an_error_not_a_short_recording(tmp_path, capsys):
+    archive = tmp_path / "turntable.mcap"
+    rc, _, _ = run(["archive", ROOT / "recordings" / "turntable.npz", archive, "--keep-noise", "--frames",
+                    "--points"], capsys)
+    assert rc == 0
+    spans = _chunk_spans(archive)
+    assert len(spans) >= 3
+    original = archive.read_bytes()
+    start, end, data_start = spans[1]  # the second chunk: more of the recording follows it
+    data = bytearray(original)
+    data[(data_start + end) // 2] ^= 0xFF
+    bad = tmp_path / "damaged.mcap"
+    bad.write_bytes(bytes(data))
+    rc, out, err = run(["info", bad], capsys)
+    assert rc == 1, out  # before: exit 0 with the first chunk's events only, the rest gone
+    line = one_line_error(err)
+    assert f"{bad} at byte {start}: damaged MCAP chunk" in line
+    # a writer killed inside a chunk is still read up to there, with a warning (docs/archive.md)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(original[: (spans[2][0] + spans[2][1]) // 2])
+    rc, out, err = run(["info", cut], capsys)
+    assert rc == 0 and "evstream: warning:" in err and "ends inside a record" in err
