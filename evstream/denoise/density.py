@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from ..events import EventChunk, NoiseClass
+from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
 from .rowsum import box_area, column_sum, padded_map, row_add
@@ -69,21 +70,21 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
             if stop == i:
                 break
             while i < stop:
-                if not all_live and codes[i] != 0:
+                if not all_live and codes[ix(i)] != 0:
                     i += 1
                     continue
-                ti = t[i]
+                ti = t[ix(i)]
                 oldest = ti - window_us
-                while size > 0 and fifo_t[head] <= oldest:
-                    pos = fifo_pos[head]
+                while size > 0 and fifo_t[ix(head)] <= oldest:
+                    pos = fifo_pos[ix(head)]
                     row_add(hsum, pos, -1, L)
                     if match_polarity:
                         per_pol[1 if pos >= plane else 0] -= 1
                     head = (head + 1) & mask
                     size -= 1
-                xi = np.intp(x[i])
-                yi = np.intp(y[i])
-                pl = np.intp(p[i]) if match_polarity else 0
+                xi = np.intp(x[ix(i)])
+                yi = np.intp(y[ix(i)])
+                pl = np.intp(p[ix(i)]) if match_polarity else 0
                 corner = pl * plane + yi * padded_width + xi  # padded (row y, column x): the box's top-left
                 total = column_sum(hsum, corner + radius, padded_width, L)
                 area = L * L
@@ -94,18 +95,18 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                     threshold = per_area_abs * area - 1e-9  # compare counts: no rounding flips
                 else:
                     threshold = max(1.0, per_area_rel * area * g)
-                codes[i] = noise_code * (total < threshold)  # branchless: the outcome is data-dependent
+                codes[ix(i)] = noise_code * (total < threshold)  # branchless: the outcome is data-dependent
                 if want_score:
                     if mode == ABSOLUTE:
-                        out_score[i] = total / (area * window_s)
+                        out_score[ix(i)] = total / (area * window_s)
                     else:  # density relative to the sensor's mean: keep iff >= rho_rel (and N >= 1)
                         mean_count = area * g / (width * height)
-                        out_score[i] = total / mean_count if mean_count > 0 else (np.inf if total > 0 else 0.0)
+                        out_score[ix(i)] = total / mean_count if mean_count > 0 else (np.inf if total > 0 else 0.0)
                 pos = corner + radius * padded_width
                 row_add(hsum, pos, 1, L)
                 slot = (head + size) & mask
-                fifo_t[slot] = ti
-                fifo_pos[slot] = pos
+                fifo_t[ix(slot)] = ti
+                fifo_pos[ix(slot)] = pos
                 if match_polarity:
                     per_pol[pl] += 1
                 size += 1

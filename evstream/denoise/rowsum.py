@@ -18,6 +18,8 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from ..nowrap import ix
+
 VECTOR_BYTES = 32
 
 
@@ -91,5 +93,5 @@ def column_sum(a, q, stride, L):
     """a[q] + a[q + stride] + ... (L cells down a column), as int64."""
     total = np.int64(0)
     for k in range(L):
-        total += a[q + k * stride]
+        total += a[ix(q + k * stride)]
     return total

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from ..events import EventChunk, NoiseClass
+from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
 from .rowsum import box_area, column_sum, padded_map, row_add
@@ -68,46 +69,46 @@ def dc_kernel(radius, form, want_score):
         live = np.empty(n - start, np.int64)  # the events still SIGNAL, gathered without a branch:
         k = 0  # skipping the others in the loop below mispredicts on every other event
         for i in range(start, n):
-            live[k] = i
-            k += codes[i] == 0
+            live[ix(k)] = i
+            k += codes[ix(i)] == 0
         j = 0
         while j < k:
             stop = min(k, j + cap - size)  # each event pushes at most one activation
             if stop == j:
                 break
             while j < stop:
-                i = live[j]
+                i = live[ix(j)]
                 j += 1
-                ti = t[i]
+                ti = t[ix(i)]
                 if ti >= bin_end or ti < bin_start:  # a division (and expiry) only on a new bin
                     nb = ti // bin_us
                     for old in range(max(b - n_bins + 1, nb - 2 * n_bins + 1), nb - n_bins + 1):
                         k_old = old % n_bins  # bins b - n + 1 .. nb - n leave the window
-                        for _ in range(per_bin[k_old]):
-                            pos = fifo_pos[head]
-                            count[pos + radius] -= 1
+                        for _ in range(per_bin[ix(k_old)]):
+                            pos = fifo_pos[ix(head)]
+                            count[ix(pos + radius)] -= 1
                             row_add(rowsum, pos, -1, L)
                             head = (head + 1) & mask
                             size -= 1
-                        per_bin[k_old] = 0
+                        per_bin[ix(k_old)] = 0
                     b = nb
                     b_slot = b % n_bins
                     bin_start = b * bin_us
                     bin_end = bin_start + bin_us
-                xi = np.intp(x[i])
-                yi = np.intp(y[i])
+                xi = np.intp(x[ix(i)])
+                yi = np.intp(y[ix(i)])
                 pos = (yi + radius) * padded_width + xi  # the pixel's row of L cells in `rowsum`
                 c = pos + radius  # the pixel's own cell
                 # first event of this pixel in this bin: one more active bin (equal modulo 2**32 but no
                 # active bin in the window: the pixel was idle for 2**32 bins, the match is stale)
-                new = (last_bin[c] != np.uint32(b & 0xFFFFFFFF)) | (count[c] == 0)
-                last_bin[c] = b
-                own = np.int64(count[c]) + new
-                count[c] = own
+                new = (last_bin[ix(c)] != np.uint32(b & 0xFFFFFFFF)) | (count[ix(c)] == 0)
+                last_bin[ix(c)] = b
+                own = np.int64(count[ix(c)]) + new
+                count[ix(c)] = own
                 row_add(rowsum, pos, new, L)  # branchless: delta 0 when the bin was already active
                 slot = (head + size) & mask
-                fifo_pos[slot] = pos
-                per_bin[b_slot] += new
+                fifo_pos[ix(slot)] = pos
+                per_bin[ix(b_slot)] += new
                 size += new
                 active = column_sum(rowsum, yi * padded_width + xi + radius, padded_width, L) - own
                 n_nb = box_area(xi, yi, radius, width, height) - 1
@@ -116,14 +117,14 @@ def dc_kernel(radius, form, want_score):
                     hot = own * n_nb - active > lam_bins * n_nb if n_nb > 0 else own > lam_bins
                 else:
                     hot = own * n_nb > lam * active if active > 0 else own > lam  # guard: quiet neighbours
-                codes[i] = noise_code * hot
+                codes[ix(i)] = noise_code * hot
                 if want_score:
                     dc = own / n_bins
                     mean = active / (n_nb * n_bins) if n_nb > 0 else 0.0
                     if form == DIFFERENCE:
-                        out_score[i] = dc - mean
+                        out_score[ix(i)] = dc - mean
                     else:
-                        out_score[i] = dc / mean if mean > 0 else np.inf
+                        out_score[ix(i)] = dc / mean if mean > 0 else np.inf
         fifo_state[0] = head
         fifo_state[1] = size
         fifo_state[2] = b
