@@ -8,6 +8,8 @@ bounded in memory (see `evstream.testing`).
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -183,8 +185,16 @@ class Pipeline:
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> Pipeline:
         """From `{"stage": [{"kind": ..., **params}, ...], "framer": {"kind": ..., **params}}`."""
-        stages = [build("stage", dict(spec)) for spec in config.get("stage", [])]
+        unknown = sorted(set(config) - {"stage", "framer"})
+        if unknown:  # a typo such as [[stages]] would otherwise run no stage at all
+            raise ValueError(f"unknown table {unknown[0]!r}; a pipeline has [[stage]] (one per stage) and [framer]")
+        specs = config.get("stage", [])
+        if not isinstance(specs, list) or not all(isinstance(spec, dict) for spec in specs):
+            raise ValueError("stages are an array of tables: [[stage]] (double brackets), one per stage")
         framer_spec = config.get("framer")
+        if framer_spec is not None and not isinstance(framer_spec, dict):
+            raise ValueError("the framer is a table: [framer] with kind = ...")
+        stages = [build("stage", dict(spec)) for spec in specs]
         framer = build("framer", dict(framer_spec)) if framer_spec else None
         return cls(stages, framer)
 
@@ -232,12 +242,33 @@ def build(role: str, spec: dict[str, Any]):
     _load_plugins()
     spec = dict(spec)
     kind = spec.pop("kind", None)
+    if kind is None:
+        raise ValueError(f"a {role} needs kind = one of {', '.join(sorted(_REGISTRY[role]))}")
     if kind not in _REGISTRY[role]:
         raise ValueError(f"unknown {role} kind {kind!r}; known: {', '.join(sorted(_REGISTRY[role]))}")
+    factory = _REGISTRY[role][kind]
+    accepted = _parameters(factory)
+    unknown = sorted(set(spec) - set(accepted)) if accepted is not None else []
+    if unknown:  # name what it takes, not Python's "__init__() got an unexpected keyword argument"
+        raise ValueError(f"{role} {kind!r}: unknown parameter {unknown[0]!r}; "
+                         f"its parameters: {', '.join(accepted) or 'none'}")
     try:
-        return _REGISTRY[role][kind](**spec)
+        return factory(**spec)
     except TypeError as e:
         raise ValueError(f"{role} {kind!r}: {e}") from None
+
+
+def _parameters(factory) -> list[str] | None:
+    """The keyword parameters a stage or framer takes (None when it takes any)."""
+    if dataclasses.is_dataclass(factory):
+        return [f.name for f in dataclasses.fields(factory) if f.init and not f.name.startswith("_")]
+    try:
+        sig = inspect.signature(factory)
+    except (TypeError, ValueError):
+        return None
+    if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+        return None
+    return [n for n, p in sig.parameters.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
 
 
 def describe(obj) -> dict[str, Any]:

@@ -107,3 +107,21 @@ def test_an_archive_damaged_in_the_middle_is_an_error_not_a_short_recording(tmp_
     cut.write_bytes(original[: (spans[2][0] + spans[2][1]) // 2])
     rc, out, err = run(["info", cut], capsys)
     assert rc == 0 and "evstream: warning:" in err and "ends inside a record" in err
+
+
+@pytest.mark.parametrize("toml, says", [
+    ('[[stages]]\nkind = "density"\n', "unknown table 'stages'"),  # before: ran with no stage, exit 0
+    ('[stage]\nkind = "density"\n', "[[stage]] (double brackets)"),
+    ('[[stage]]\nkind = "density"\nL = 5\n', "stage 'density': unknown parameter 'L'; its parameters: radius_px, "),
+    ('[[stage]]\nname = "density"\n', "a stage needs kind = one of "),
+    ('[[stage]]\nkind = "stcf"\n[framer]\nkind = "fw"\nwindow = 5000\n', "unknown parameter 'window'; its "
+                                                                         "parameters: window_us, "),
+])
+def test_a_wrong_pipeline_file_names_the_mistake(tmp_path, capsys, toml, says):
+    path = tmp_path / "pipeline.toml"
+    path.write_text(toml)
+    rc, out, err = run(["replay", SHIPPED, "--pipeline", path, "--save", tmp_path / "x.rrd"], capsys)
+    assert rc == 1, out
+    line = one_line_error(err)
+    assert str(path) in line and says in line
+    assert not (tmp_path / "x.rrd").exists()  # refused before anything ran
