@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 import warnings
@@ -29,17 +30,34 @@ class UsageError(Exception):
 # -- shared pieces ----------------------------------------------------------------------------------
 def _open(path: str, args=None):
     from sources import open_source
-    from sources._base import as_geometry
 
     options = {}
     if getattr(args, "geometry", None):
-        try:
-            options["geometry"] = as_geometry(args.geometry)
-        except ValueError as e:
-            raise UsageError(f"--{e}") from None
+        options["geometry"] = _geometry_flag(args.geometry)
     if getattr(args, "timestamps", None):
         options["timestamps"] = args.timestamps
     return open_source(path, **options)
+
+
+def _geometry_flag(text: str):
+    """`--geometry WxH` as a Geometry; a bad one is a usage error naming what was typed
+    (`--geometry 0x0: Geometry.width must be ...`, not `--Geometry.width ...`)."""
+    from sources._base import as_geometry
+
+    try:
+        return as_geometry(text)
+    except ValueError as e:
+        raise UsageError(f"--geometry {text}: {str(e).removeprefix(f'geometry {text!r}: ')}") from None
+
+
+def _check_numbers(args, *, at_least_zero=(), positive=()) -> None:
+    """Flag values that cannot work are usage errors (exit 2), named as typed: `--speed -1: must be >= 0`.
+    NaN and infinity are refused too (`--speed nan` used to replay as fast as possible)."""
+    for names, ok, rule in ((at_least_zero, lambda v: v >= 0, ">= 0"), (positive, lambda v: v > 0, "positive")):
+        for name in names:
+            v = getattr(args, name, None)
+            if v is not None and not (math.isfinite(v) and ok(v)):
+                raise UsageError(f"--{name.replace('_', '-')} {v:g}: must be {rule} (a finite number)")
 
 
 def _add_source_flags(p) -> None:
@@ -183,6 +201,7 @@ def cmd_replay(args) -> int:
         raise UsageError(f"--{outputs[0]} and --{outputs[1]}: choose one place for the Rerun output")
     if args.point_budget < 0:
         raise UsageError(f"--point-budget {args.point_budget}: must be >= 0 (0 = every event)")
+    _check_numbers(args, at_least_zero=("speed",), positive=("slab_ms",))
     source = _open(args.source, args)
     pipeline = _pipeline(args, source)
     _attach_framer(pipeline, args)
@@ -286,6 +305,7 @@ def cmd_archive(args) -> int:
 
     if not args.out.endswith(".mcap"):
         raise UsageError(f"{args.out}: the archive's name must end in .mcap")
+    _check_numbers(args, at_least_zero=("speed",), positive=("packet_us", "flush_s"))
     source = _open(args.source, args)
     pipeline = _pipeline(args, source)
     _attach_framer(pipeline, args)
@@ -457,6 +477,7 @@ def cmd_synth(args) -> int:
 def cmd_eval(args) -> int:
     from . import evaluation
 
+    _check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
     paths = list(args.recordings) or sorted(str(p) for p in Path("recordings").glob("*.npz"))
     if args.real:
         paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")

@@ -89,8 +89,9 @@ def cmd_publish(args) -> int:
     from sources.zenoh_session import drain
     from sources.zenoh_sub import camera_of
 
-    from .cli import UsageError, _open, _StopOnSignal
+    from .cli import UsageError, _check_numbers, _open, _StopOnSignal
 
+    _check_numbers(args, at_least_zero=("speed", "wait_subscribers", "drain_s"))
     if any(c in args.key for c in "*$?#"):
         raise UsageError(f"--key {args.key}: a publisher needs a concrete key, no wildcards")
     if args.packet_us <= 0:
@@ -260,9 +261,10 @@ def cmd_subscribe(args) -> int:
 
     from sources.zenoh_sub import End, ZenohSubscription
 
-    from .cli import UsageError, _StopOnSignal
+    from .cli import UsageError, _check_numbers, _geometry_flag, _StopOnSignal
 
     _check_endpoints(args)
+    _check_numbers(args, at_least_zero=("wait_subscribers", "drain_s"), positive=("slab_ms", "flush_s"))
     viewer_flags = [o for o in ("save", "spawn", "serve", "viewer") if getattr(args, o)]
     if len(viewer_flags) > 1:
         raise UsageError(f"--{viewer_flags[0]} and --{viewer_flags[1]}: choose one place for the Rerun output")
@@ -279,12 +281,7 @@ def cmd_subscribe(args) -> int:
     flow = args.flow or ("ring" if viewer_flags and not (args.archive or args.republish) else "block")
     geometry = None
     if args.geometry:
-        from sources._base import as_geometry
-
-        try:
-            geometry = as_geometry(args.geometry)
-        except ValueError as e:
-            raise UsageError(f"--geometry: {e}") from None
+        geometry = _geometry_flag(args.geometry)
     node = Subscriber(args)
     if viewer_flags:
         from sinks.rerun_viewer import open_output

@@ -125,3 +125,25 @@ def test_a_wrong_pipeline_file_names_the_mistake(tmp_path, capsys, toml, says):
     line = one_line_error(err)
     assert str(path) in line and says in line
     assert not (tmp_path / "x.rrd").exists()  # refused before anything ran
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["replay", SHIPPED, "--speed", "-1"], "--speed -1: must be >= 0"),  # was exit 1
+    (["replay", SHIPPED, "--speed", "nan"], "--speed nan: must be >= 0"),  # was a replay at full speed
+    (["replay", SHIPPED, "--slab-ms", "0"], "--slab-ms 0: must be positive"),  # was exit 1, no flag named
+    (["archive", SHIPPED, "OUT.mcap", "--speed", "-1"], "--speed -1: must be >= 0"),
+    (["archive", SHIPPED, "OUT.mcap", "--flush-s", "-1"], "--flush-s -1: must be positive"),  # was accepted
+    (["archive", SHIPPED, "OUT.mcap", "--packet-us", "0"], "--packet-us 0: must be positive"),
+    (["eval", SHIPPED, "--seeds", "0"], "--seeds 0: must be positive"),  # printed empty tables, exit 0
+    (["info", SHIPPED, "--geometry", "0x0"], "--geometry 0x0: Geometry.width must be"),  # was "--Geometry..."
+    (["info", SHIPPED, "--geometry", "abc"], "--geometry abc: expected WIDTHxHEIGHT"),
+    (["publish", SHIPPED, "--speed", "inf"], "--speed inf: must be >= 0"),
+    (["subscribe", "evstream/*/events", "--geometry", "5x0"], "--geometry 5x0: Geometry.height must be"),
+    (["subscribe", "evstream/*/events", "--flush-s", "0"], "--flush-s 0: must be positive"),
+])
+def test_a_flag_value_that_cannot_work_is_a_usage_error_naming_the_flag(tmp_path, capsys, monkeypatch, argv, says):
+    monkeypatch.chdir(tmp_path)  # OUT.mcap, out/ land here if a check is missing
+    rc, _, err = run(argv, capsys)
+    assert rc == 2
+    assert says in one_line_error(err)
+    assert not any(tmp_path.iterdir())  # refused before anything was written
