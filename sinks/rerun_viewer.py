@@ -146,7 +146,10 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
     log_dir = Path(log_dir) if log_dir else Path(os.environ.get("TMPDIR", "/tmp"))
     if save:
         Path(save).parent.mkdir(parents=True, exist_ok=True)
-        rec.save(save)
+        try:
+            rec.save(save)
+        except RuntimeError as e:  # the SDK's "Failed to create file: ...": an I/O error, said as one
+            raise OSError(f"{save}: cannot write the Rerun recording: {e}") from None
         return RerunOutput(rec, "save", path=save)
     if connect:
         _check_viewer(connect)

@@ -147,3 +147,12 @@ def test_a_flag_value_that_cannot_work_is_a_usage_error_naming_the_flag(tmp_path
     assert rc == 2
     assert says in one_line_error(err)
     assert not any(tmp_path.iterdir())  # refused before anything was written
+
+
+def test_replay_saving_where_no_file_can_be_written_is_a_plain_error(tmp_path, capsys):
+    taken = tmp_path / "taken.rrd"
+    taken.mkdir()  # a directory where the recording should go
+    rc, out, err = run(["replay", SHIPPED, "--save", taken], capsys)
+    assert rc == 1 and out == ""
+    line = one_line_error(err)  # was "internal error: RuntimeError: Failed to create file ..."
+    assert line.startswith(f"evstream: error: {taken}: cannot write the Rerun recording") and "directory" in line
