@@ -106,9 +106,14 @@ def cmd_publish(args) -> int:
             print(f"evstream: warning: no subscriber on {args.key} after {args.wait_subscribers:g} s; "
                   "publishing anyway", file=sys.stderr)
         t0 = time.perf_counter()
+        unmatched_packets = unmatched_events = 0  # put while no subscriber matched: they went to no one
         with _StopOnSignal() as stop:
             for packet in stop.chunks(paced(packetize(source, args.packet_us), args.speed)):
+                matched, before = pub.matching, pub.packets
                 pub.put_events(packet.t, packet.x, packet.y, packet.p, width=g.width, height=g.height)
+                if not matched:
+                    unmatched_packets += pub.packets - before
+                    unmatched_events += len(packet)
         wall = time.perf_counter() - t0
         pub.end()
         drain(session, args.drain_s)
@@ -119,8 +124,13 @@ def cmd_publish(args) -> int:
     finally:
         session.close()
     summary = {"key": args.key, "packets": pub.packets, "events": pub.events, "bytes": pub.bytes,
+               "unmatched_packets": unmatched_packets, "unmatched_events": unmatched_events,
                "wall_s": wall, "events_per_s": pub.events / wall if wall > 0 else 0.0,
                "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
+    if unmatched_packets:  # a router or the subscribers that went away must not look like a delivery
+        print(f"evstream: warning: {unmatched_packets:,} of {pub.packets:,} packets ({unmatched_events:,} events) "
+              f"went out while no subscriber matched {args.key} (none yet, or the subscribers or the router "
+              "went away): nobody received them", file=sys.stderr)
     if args.json:
         print(json.dumps(summary), flush=True)
     else:

@@ -2,6 +2,8 @@
 The rule: one line on stderr naming the file (and where it can, the byte) and the reason, exit code 1
 (runtime) or 2 (usage); never an "internal error", a traceback or silently lost data."""
 
+import signal
+import time
 import zipfile
 from pathlib import Path
 
@@ -156,3 +158,35 @@ def test_replay_saving_where_no_file_can_be_written_is_a_plain_error(tmp_path, c
     assert rc == 1 and out == ""
     line = one_line_error(err)  # was "internal error: RuntimeError: Failed to create file ..."
     assert line.startswith(f"evstream: error: {taken}: cannot write the Rerun recording") and "directory" in line
+
+
+# -- live: what a publisher says when nobody gets its packets (real Zenoh router on loopback) --------------
+def test_publisher_whose_router_goes_away_says_how_much_nobody_received(tmp_path):
+    from test_zenoh_live import Procs, free_port
+
+    procs = Procs(tmp_path)
+    try:
+        port = free_port()
+        router = procs.router(port)
+        sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end")
+        # bar.npz is 0.5 s of events: 3.3 s at --speed 0.15, so the router dies in the middle
+        pub = procs.start("publish", SHIPPED, "--key", "evstream/cam/events", "--connect", f"tcp/127.0.0.1:{port}",
+                          "--speed", "0.15", "--wait-subscribers", "20", "--drain-s", "1", "--json")
+        time.sleep(2.5)
+        assert pub.poll() is None, procs.stderr(pub)
+        router.send_signal(signal.SIGTERM)
+        router.wait(timeout=30)
+        got = procs.result(pub)  # exit 0: the camera itself did nothing wrong
+        assert 0 < got["unmatched_packets"] < got["packets"] == 50
+        assert 0 < got["unmatched_events"] < got["events"]
+        warning = [line for line in procs.stderr(pub).splitlines() if line.startswith("evstream: warning:")]
+        assert len(warning) == 1, procs.stderr(pub)
+        assert (f"{got['unmatched_packets']:,} of 50 packets ({got['unmatched_events']:,} events) went out while no "
+                "subscriber matched evstream/cam/events") in warning[0]
+        sub.send_signal(signal.SIGTERM)
+        received = procs.result(sub)
+        # what the subscriber got and what the publisher says nobody got add up to what was published
+        assert received["events"] + got["unmatched_events"] <= got["events"]
+        assert received["events"] >= got["events"] - got["unmatched_events"] - 10_000  # in flight at the cut
+    finally:
+        procs.kill_all()
