@@ -235,6 +235,8 @@ class FileSource:
         try:
             chunk = check(EventChunk.from_arrays(b.t, b.x, b.y, b.p, self.geometry))
         except EventError as e:
+            if b.byte_end <= b.byte_start:  # a reader that cannot tell bytes (AEDAT4's decoder) says nothing false
+                raise
             raise EventError(f"{e} [in bytes {b.byte_start}..{b.byte_end}]") from None
         if next_t is not None and len(chunk) and next_t >= chunk.t[-1]:
             chunk = chunk.replace(t_end=next_t)
@@ -249,11 +251,13 @@ class FileSource:
                 where = f"at byte {b.byte_start + i * b.record_bytes}"
             elif b.locate is not None:
                 where = f"at byte {b.locate(i)}"
-            else:
+            elif b.byte_end > b.byte_start:
                 where = f"in bytes {b.byte_start}..{b.byte_end}"
+            else:  # the reader does not know where its events lie in the file (AEDAT4): no "bytes 0..0"
+                where = ""
             hint = "" if self.geometry_override else " (pass geometry=(width, height) if the file's is wrong)"
             raise EventError(
-                f"{self.path} {where}: event {first_event + i}: ({b.x[i]}, {b.y[i]}) outside the "
+                f"{self.path}{' ' + where if where else ''}: event {first_event + i}: ({b.x[i]}, {b.y[i]}) outside the "
                 f"{g} sensor (size from {self.geometry_source}){hint}"
             )
 

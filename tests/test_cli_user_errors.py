@@ -190,3 +190,13 @@ def test_publisher_whose_router_goes_away_says_how_much_nobody_received(tmp_path
         assert received["events"] >= got["events"] - got["unmatched_events"] - 10_000  # in flight at the cut
     finally:
         procs.kill_all()
+
+
+@pytest.mark.parametrize("name, where", [("dvxplorer_320x240_tonic.aedat4", ": event 0:"),  # no byte offsets
+                                         ("prophesee_gen3_vga_evt2_faery.raw", " at byte 170: event 0:")])
+def test_an_error_never_names_a_made_up_byte_range(capsys, real_data, name, where):
+    rc, _, err = run(["info", real_data / name, "--geometry", "100x100"], capsys)
+    assert rc == 1
+    line = one_line_error(err)
+    assert "bytes 0..0" not in line  # AEDAT4's decoder gives no offsets: it said "in bytes 0..0"
+    assert f"{real_data / name}{where}" in line and "outside the 100x100 sensor" in line
