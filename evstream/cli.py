@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 import warnings
@@ -48,6 +49,12 @@ def _geometry_flag(text: str):
         return as_geometry(text)
     except ValueError as e:
         raise UsageError(f"--geometry {text}: {str(e).removeprefix(f'geometry {text!r}: ')}") from None
+
+
+def _not_the_input(source: str, out, flag: str) -> None:
+    """An output that is the input recording would destroy it before (or while) it is read."""
+    if out and os.path.exists(out) and os.path.exists(source) and os.path.samefile(source, out):
+        raise UsageError(f"{flag}{out}: that is the input recording; writing there would destroy it")
 
 
 def _check_numbers(args, *, at_least_zero=(), positive=()) -> None:
@@ -202,6 +209,7 @@ def cmd_replay(args) -> int:
     if args.point_budget < 0:
         raise UsageError(f"--point-budget {args.point_budget}: must be >= 0 (0 = every event)")
     _check_numbers(args, at_least_zero=("speed",), positive=("slab_ms",))
+    _not_the_input(args.source, args.save, "--save ")
     source = _open(args.source, args)
     pipeline = _pipeline(args, source)
     _attach_framer(pipeline, args)
@@ -306,6 +314,7 @@ def cmd_archive(args) -> int:
     if not args.out.endswith(".mcap"):
         raise UsageError(f"{args.out}: the archive's name must end in .mcap")
     _check_numbers(args, at_least_zero=("speed",), positive=("packet_us", "flush_s"))
+    _not_the_input(args.source, args.out, "")  # `archive A.mcap A.mcap` emptied A.mcap and exited 0
     source = _open(args.source, args)
     pipeline = _pipeline(args, source)
     _attach_framer(pipeline, args)

@@ -200,3 +200,20 @@ def test_an_error_never_names_a_made_up_byte_range(capsys, real_data, name, wher
     line = one_line_error(err)
     assert "bytes 0..0" not in line  # AEDAT4's decoder gives no offsets: it said "in bytes 0..0"
     assert f"{real_data / name}{where}" in line and "outside the 100x100 sensor" in line
+
+
+def test_an_output_that_is_the_input_recording_is_refused_and_the_recording_kept(tmp_path, capsys):
+    rec = tmp_path / "bar.npz"
+    rec.write_bytes(SHIPPED.read_bytes())
+    archive = tmp_path / "a.mcap"
+    assert run(["archive", rec, archive], capsys)[0] == 0
+    kept = archive.read_bytes()
+    (tmp_path / "link.mcap").symlink_to(archive)
+    for argv, says in [
+        (["archive", archive, archive], f"{archive}: that is the input recording"),  # was: emptied, exit 0
+        (["archive", archive, tmp_path / "link.mcap"], "link.mcap: that is the input recording"),
+        (["replay", rec, "--save", rec], f"--save {rec}: that is the input recording"),  # was: overwritten
+    ]:
+        rc, _, err = run(argv, capsys)
+        assert rc == 2 and says in one_line_error(err)
+    assert archive.read_bytes() == kept and rec.read_bytes() == SHIPPED.read_bytes()
