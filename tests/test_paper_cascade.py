@@ -153,14 +153,28 @@ def test_dc_bins_are_anchored_at_time_zero_not_at_the_chunk():
     assert score.tolist() == [0.5, 1.0]  # bins 0 and 1: the second event sees two active bins of two
 
 
-def test_dc_sees_a_pixel_idle_for_2_to_the_32_bins_as_newly_active():
-    # the last active bin is kept modulo 2**32: an equal residue after a long idle must not hide the activation
+@pytest.mark.parametrize("idle_bins", [256, 512, 2**32])
+def test_dc_sees_a_pixel_idle_for_a_multiple_of_256_bins_as_newly_active(idle_bins):
+    # the last active bin is kept modulo 256: an equal residue after a long idle must not hide the activation
     g = Geometry(3, 3)
-    ev = EventChunk.from_arrays([0, 2**32, 2**32 + 1, 2**32 + 3], [1, 1, 0, 1], [1, 1, 0, 1], [1, 1, 1, 1], g)
+    t0 = idle_bins
+    ev = EventChunk.from_arrays([0, t0, t0 + 1, t0 + 3], [1, 1, 0, 1], [1, 1, 0, 1], [1, 1, 1, 1], g)
     f = TimeSeriesFilter(rate_hz=1e6, n_bins=4, lam=0.0)
     _, score = f.classify_scored(ev)
     assert np.allclose(score, dc_reference(ev, TimeSeriesFilter(rate_hz=1e6, n_bins=4, lam=0.0))[1])
     assert score[1] == 0.25 and score[3] == 0.5 - 1 / 4 / 8  # one then two active bins of four
+
+
+def test_dc_with_255_bins_counts_a_pixel_active_in_every_bin():
+    # n = 255, the most the one-byte count holds: a pixel firing in every bin reaches DC 1, and its
+    # bin residues wrap past 255 while it stays active
+    g = Geometry(3, 3)
+    t = np.arange(600)
+    ev = EventChunk.from_arrays(t, np.ones(600), np.ones(600), np.ones(600), g)
+    f = TimeSeriesFilter(rate_hz=1e6, n_bins=255, lam=0.0)
+    _, score = f.classify_scored(ev)
+    assert np.allclose(score, dc_reference(ev, TimeSeriesFilter(rate_hz=1e6, n_bins=255, lam=0.0))[1])
+    assert score[254] == 1.0 and score[599] == 1.0
 
 
 @pytest.mark.parametrize("make", [

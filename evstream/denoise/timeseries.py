@@ -11,7 +11,7 @@ kept — including the events it classes HOT_PIXEL (a hot pixel must stay hot).
 
 Exact and streaming: each pixel's count of active bins among the last n (a pixel's first event in a
 bin activates it; a FIFO expires the activation when its bin leaves the window), held in a row-summed
-map (`rowsum`) so that the neighbours' total is L reads. 7 bytes per pixel plus 4 per activation in
+map (`rowsum`) so that the neighbours' total is L reads. 4 bytes per pixel plus 4 per activation in
 the window. (A uint64 bitmask per pixel with popcounts of the neighbours, the obvious layout, is 16
 bytes per pixel and measured 1.2–1.4× slower in the cascade.)
 
@@ -44,16 +44,17 @@ def dc_kernel(radius, form, want_score):
     L = 2 * radius + 1
 
     @njit(cache=True, nogil=True)
-    def kernel(t, x, y, start, codes, noise_code, last_bin, count, rowsum, padded_width, fifo_pos, per_bin,
+    def kernel(t, x, y, start, codes, noise_code, pixel, rowsum, padded_width, fifo_pos, per_bin,
                fifo_state, bin_us, n_bins, lam, width, height, out_score):
         """For each event still SIGNAL in `codes` from `start`: mark its pixel active in the event's bin,
         compare the pixel's active bins with its neighbours' mean, write `noise_code` when hot (and the
         score if `want_score`). Returns the index reached: len(t) unless the FIFO is full.
 
-        State, indexed like the padded `rowsum` map: `last_bin` (the pixel's last active bin, modulo
-        2**32), `count` (its active bins among the last n), `rowsum` (row sums of `count` over L
-        columns, `rowsum` module); a FIFO of activations (`fifo_pos`, the cell's row position) with
-        `per_bin[k % n]` activations in bin k, expired when the bin leaves the window;
+        State, indexed like the padded `rowsum` map: `pixel`, a uint16 per pixel holding its count of
+        active bins among the last n (low byte) and its last active bin modulo 256 (high byte); `rowsum`
+        (row sums of the counts over L columns, `rowsum` module); a FIFO of activations (`fifo_pos`,
+        the cell's row position) with `per_bin[k % n]` activations in bin k, expired when the bin
+        leaves the window;
         `fifo_state` = [head, size, current bin].
         """
         cap = len(fifo_pos)
@@ -86,7 +87,7 @@ def dc_kernel(radius, form, want_score):
                         k_old = old % n_bins  # bins b - n + 1 .. nb - n leave the window
                         for _ in range(per_bin[ix(k_old)]):
                             pos = fifo_pos[ix(head)]
-                            count[ix(pos + radius)] -= 1
+                            pixel[ix(pos + radius)] -= 1  # its count (low byte) is >= 1
                             row_add(rowsum, pos, -1, L)
                             head = (head + 1) & mask
                             size -= 1
@@ -99,12 +100,14 @@ def dc_kernel(radius, form, want_score):
                 yi = np.intp(y[ix(i)])
                 pos = (yi + radius) * padded_width + xi  # the pixel's row of L cells in `rowsum`
                 c = pos + radius  # the pixel's own cell
-                # first event of this pixel in this bin: one more active bin (equal modulo 2**32 but no
-                # active bin in the window: the pixel was idle for 2**32 bins, the match is stale)
-                new = (last_bin[ix(c)] != np.uint32(b & 0xFFFFFFFF)) | (count[ix(c)] == 0)
-                last_bin[ix(c)] = b
-                own = np.int64(count[ix(c)]) + new
-                count[ix(c)] = own
+                # first event of this pixel in this bin: one more active bin. Its last active bin equals
+                # b modulo 256 either because it is b, or because the pixel has been idle >= 256 > n bins
+                # and then has no active bin left (count 0): exact, in one byte
+                cell = np.int64(pixel[ix(c)])
+                b8 = b & 0xFF
+                new = ((cell >> 8) != b8) | ((cell & 0xFF) == 0)
+                own = (cell & 0xFF) + new  # <= n: bin b - n left the window before bin b began
+                pixel[ix(c)] = (b8 << 8) | own
                 row_add(rowsum, pos, new, L)  # branchless: delta 0 when the bin was already active
                 slot = (head + size) & mask
                 fifo_pos[ix(slot)] = pos
@@ -178,9 +181,9 @@ class TimeSeriesFilter(InPlaceClassifier):
 
     def _init(self, g) -> dict:
         r = self.radius_px
-        cells = len(padded_map(g.width, g.height, r, np.uint8))
+        cells = len(padded_map(g.width, g.height, r, np.uint16))
         cap = 1 << 12
-        return {"geometry": g, "last_bin": np.zeros(cells, np.uint32), "count": np.zeros(cells, np.uint8),
+        return {"geometry": g, "pixel": np.zeros(cells, np.uint16),
                 "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
                 "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64)}
 
@@ -194,7 +197,7 @@ class TimeSeriesFilter(InPlaceClassifier):
         kernel = dc_kernel(self.radius_px, DIFFERENCE if self.form == "difference" else RATIO, want_score)
         i = 0
         while True:
-            i = kernel(chunk.t, chunk.x, chunk.y, i, codes, int(self.noise_class), s["last_bin"], s["count"],
+            i = kernel(chunk.t, chunk.x, chunk.y, i, codes, int(self.noise_class), s["pixel"],
                        s["rowsum"], g.width + 2 * self.radius_px, s["fifo_pos"], s["per_bin"], s["fifo_state"],
                        self.bin_us, self.n_bins, float(self.lam), g.width, g.height, score)
             if i >= len(chunk):
