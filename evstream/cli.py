@@ -253,7 +253,8 @@ def cmd_replay(args) -> int:
                 print(f"real-time lag: median {d['lag_median_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "
                       f"max {d['lag_max_ms']:.1f} ms, at the end {d['lag_end_ms']:.1f} ms")
             if save:
-                print(f"wrote {save} — open it with:  rerun {save}   (or: evstream replay --spawn / --serve)")
+                print(f"wrote {save} — open it with:  {_rerun_command()} {save}   "
+                      "(or: evstream replay --spawn / --serve)")
         sys.stdout.flush()
         if out.mode == "serve":
             print(f"serving {out.web_url} until Ctrl-C", file=sys.stderr, flush=True)
@@ -270,6 +271,22 @@ def cmd_replay(args) -> int:
     finally:
         out.stop()
     return 0
+
+
+def _rerun_command() -> str:
+    """How to start the Rerun viewer from this shell: `rerun` when it is on PATH, else the one installed
+    beside this Python (after `make demo`, `.venv/bin/rerun`: the venv is not activated)."""
+    import shutil
+
+    if shutil.which("rerun"):
+        return "rerun"
+    beside = Path(sys.executable).parent / "rerun"
+    if not beside.exists():
+        return "rerun"
+    try:
+        return os.path.relpath(beside) if not os.path.relpath(beside).startswith("..") else str(beside)
+    except ValueError:  # another drive (Windows)
+        return str(beside)
 
 
 class _StopOnSignal:

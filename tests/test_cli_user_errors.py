@@ -2,7 +2,11 @@
 The rule: one line on stderr naming the file (and where it can, the byte) and the reason, exit code 1
 (runtime) or 2 (usage); never an "internal error", a traceback or silently lost data."""
 
+import os
+import shutil
 import signal
+import subprocess
+import sys
 import time
 import zipfile
 from pathlib import Path
@@ -217,3 +221,16 @@ def test_an_output_that_is_the_input_recording_is_refused_and_the_recording_kept
         rc, _, err = run(argv, capsys)
         assert rc == 2 and says in one_line_error(err)
     assert archive.read_bytes() == kept and rec.read_bytes() == SHIPPED.read_bytes()
+
+
+def test_the_command_replay_prints_for_opening_its_file_runs_in_the_same_shell(tmp_path):
+    env = {**os.environ, "PATH": "/usr/bin:/bin"}  # a shell where the venv is not activated (make demo)
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "replay", SHIPPED, "--save", "x.rrd"],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    line = next(line for line in r.stdout.splitlines() if "open it with:" in line)
+    command = line.split("open it with:")[1].split()[0]
+    exe = shutil.which(command, path=env["PATH"]) or (str(tmp_path / command) if "/" in command else None)
+    assert exe and os.access(exe, os.X_OK), f"{command!r} does not run in that shell"  # was plain 'rerun'
+    v = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60)
+    assert v.returncode == 0 and "rerun" in v.stdout.lower()
