@@ -698,6 +698,12 @@ def _run(args) -> int:
     except KeyboardInterrupt:
         print("evstream: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `evstream info REC | head -3`: the reader left; not an error to print
+        try:  # Python's own flush of stdout at exit must not raise it again
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):  # stdout is not a real file (captured)
+            pass
+        return 141  # 128 + SIGPIPE, as a tool killed by it
     except (EventError, OSError, ValueError) as e:
         if args.debug:
             raise

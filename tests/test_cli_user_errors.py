@@ -234,3 +234,13 @@ def test_the_command_replay_prints_for_opening_its_file_runs_in_the_same_shell(t
     assert exe and os.access(exe, os.X_OK), f"{command!r} does not run in that shell"  # was plain 'rerun'
     v = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60)
     assert v.returncode == 0 and "rerun" in v.stdout.lower()
+
+
+def test_a_reader_that_leaves_early_is_not_an_error_message():
+    """`evstream info REC | head -1`: the pipe closes before evstream writes."""
+    p = subprocess.Popen([sys.executable, "-m", "evstream.cli", "info", SHIPPED], cwd=ROOT,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p.stdout.close()  # the reader is gone before a byte is written
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=60) == 141  # 128 + SIGPIPE, as a tool killed by it
+    assert err == ""  # was "evstream: error: [Errno 32] Broken pipe"
