@@ -29,6 +29,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..nowrap import ix
+
 __all__ = ["Evt3Decoder", "Evt3Encoder", "decode", "encode"]
 
 # state slots of the decoder (an int64 array, so the kernel stays a pure function of arrays)
@@ -66,7 +68,7 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     nw = len(words)
     t = (loops << 24) + (high << 12) + low
     while i < nw:
-        w = np.int64(words[i])
+        w = np.int64(words[ix(i)])
         kind = w >> 12
         payload = w & 0xFFF
         if not has_high:
@@ -101,10 +103,10 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
             if t < last_t:
                 counters[_TIME_BACK] += 1
             last_t = t
-            out_t[n] = t
-            out_x[n] = payload & 0x7FF
-            out_y[n] = y
-            out_p[n] = payload >> 11
+            out_t[ix(n)] = t
+            out_x[ix(n)] = payload & 0x7FF
+            out_y[ix(n)] = y
+            out_p[ix(n)] = payload >> 11
             n += 1
         elif kind == 0x6:  # TIME_LOW
             low = payload
@@ -121,10 +123,10 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
             b = 0
             while mask:
                 if mask & 1:
-                    out_t[n] = t
-                    out_x[n] = base_x + b
-                    out_y[n] = y
-                    out_p[n] = pol
+                    out_t[ix(n)] = t
+                    out_x[ix(n)] = base_x + b
+                    out_y[ix(n)] = y
+                    out_p[ix(n)] = pol
                     n += 1
                 mask >>= 1
                 b += 1
@@ -259,17 +261,17 @@ def _advance_time_high(out, k, frm, to):
         end = (cur | 0xFFF)
         while end - cur > _MAX_HIGH_STEP:
             cur += _MAX_HIGH_STEP
-            out[k] = 0x8000 | (cur & 0xFFF)
+            out[ix(k)] = 0x8000 | (cur & 0xFFF)
             k += 1
-        out[k] = 0x8FFF
-        out[k + 1] = 0x8000
+        out[ix(k)] = 0x8FFF
+        out[ix(k + 1)] = 0x8000
         k += 2
         cur = end + 1
     while to - cur > _MAX_HIGH_STEP:
         cur += _MAX_HIGH_STEP
-        out[k] = 0x8000 | (cur & 0xFFF)
+        out[ix(k)] = 0x8000 | (cur & 0xFFF)
         k += 1
-    out[k] = 0x8000 | (to & 0xFFF)
+    out[ix(k)] = 0x8000 | (to & 0xFFF)
     return k + 1
 
 
@@ -297,7 +299,7 @@ def _encode_kernel(t, x, y, p, out, state):
     cur_y = state[3]
     i = 0
     while i < n:
-        ti = t[i]
+        ti = t[ix(i)]
         h = ti >> 12
         lo = ti & 0xFFF
         if not started or h != cur_high:
@@ -306,41 +308,41 @@ def _encode_kernel(t, x, y, p, out, state):
             cur_low = -1
             started = True
         if lo != cur_low:
-            out[k] = 0x6000 | lo
+            out[ix(k)] = 0x6000 | lo
             k += 1
             cur_low = lo
-        yi = np.int64(y[i])
+        yi = np.int64(y[ix(i)])
         if yi != cur_y:
-            out[k] = yi
+            out[ix(k)] = yi
             k += 1
             cur_y = yi
-        xi = np.int64(x[i])
-        pi = np.int64(p[i])
+        xi = np.int64(x[ix(i)])
+        pi = np.int64(p[ix(i)])
         # a vector pays from 3 events of one run (same t, y, p; x increasing) within 12 pixels;
         # t of the event two ahead is the cheapest test that rules it out
-        if (i + 2 < n and t[i + 2] == ti and np.int64(x[i + 2]) < xi + 12 and t[i + 1] == ti
-                and y[i + 1] == y[i] and y[i + 2] == y[i] and p[i + 1] == p[i] and p[i + 2] == p[i]
-                and x[i + 1] > x[i] and x[i + 2] > x[i + 1]):
-            out[k] = 0x3000 | (pi << 11) | xi
+        if (i + 2 < n and t[ix(i + 2)] == ti and np.int64(x[ix(i + 2)]) < xi + 12 and t[ix(i + 1)] == ti
+                and y[ix(i + 1)] == yi and y[ix(i + 2)] == yi and p[ix(i + 1)] == pi and p[ix(i + 2)] == pi
+                and x[ix(i + 1)] > xi and x[ix(i + 2)] > x[ix(i + 1)]):
+            out[ix(k)] = 0x3000 | (pi << 11) | xi
             k += 1
             base = xi
             m = i
             while True:
-                mask = 1 << (np.int64(x[m]) - base)
+                mask = 1 << (np.int64(x[ix(m)]) - base)
                 m += 1
-                while (m < n and t[m] == ti and np.int64(x[m]) < base + 12
-                       and y[m] == y[i] and p[m] == p[i] and x[m] > x[m - 1]):
-                    mask |= 1 << (np.int64(x[m]) - base)
+                while (m < n and t[ix(m)] == ti and np.int64(x[ix(m)]) < base + 12
+                       and y[ix(m)] == yi and p[ix(m)] == pi and x[ix(m)] > x[ix(m - 1)]):
+                    mask |= 1 << (np.int64(x[ix(m)]) - base)
                     m += 1
-                out[k] = 0x4000 | mask
+                out[ix(k)] = 0x4000 | mask
                 k += 1
                 base += 12
-                if not (m < n and t[m] == ti and np.int64(x[m]) < base + 12
-                        and y[m] == y[i] and p[m] == p[i] and x[m] > x[m - 1]):
+                if not (m < n and t[ix(m)] == ti and np.int64(x[ix(m)]) < base + 12
+                        and y[ix(m)] == yi and p[ix(m)] == pi and x[ix(m)] > x[ix(m - 1)]):
                     break
             i = m
         else:
-            out[k] = 0x2000 | (pi << 11) | xi
+            out[ix(k)] = 0x2000 | (pi << 11) | xi
             k += 1
             i += 1
     state[0] = 1 if started else 0
