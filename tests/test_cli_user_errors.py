@@ -11,6 +11,7 @@ import time
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from evstream.cli import main
@@ -244,3 +245,27 @@ def test_a_reader_that_leaves_early_is_not_an_error_message():
     err = p.stderr.read().decode()
     assert p.wait(timeout=60) == 141  # 128 + SIGPIPE, as a tool killed by it
     assert err == ""  # was "evstream: error: [Errno 32] Broken pipe"
+
+
+def test_archive_of_a_recording_with_a_long_pause_before_a_small_packet(tmp_path):
+    """A camera left idle for hours, then a few events: the packet after the pause steps its EVT3 clock
+    across ~2,000 wraps. That wrote past the encoder's buffer (sized from the packet's first event):
+    segfault or glibc abort in `evstream archive`. In a child process, so a crash cannot take pytest."""
+    from evstream.events import concat
+    from sources import native, open_source
+
+    src = open_source(SHIPPED)
+    ev = concat(list(src), src.geometry)
+    half = len(ev) // 2
+    t = ev.t.copy()
+    t[half:] += 10 * 3600 * 1_000_000  # ten hours of silence
+    paused = ev.replace(t=t)[: half + 3]  # then three events
+    rec, out = tmp_path / "paused.npz", tmp_path / "paused.mcap"
+    native.save(rec, paused, {})
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "archive", rec, out, "--denoise", "none"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, (r.returncode, r.stderr)
+    back = concat(list(open_source(out)), src.geometry)
+    assert len(back) == len(paused)
+    for f in "txyp":
+        np.testing.assert_array_equal(getattr(back, f), getattr(paused, f))

@@ -57,7 +57,11 @@ def evt3_sensor_clock(t, x, y, p, from_time_high: int | None = None) -> bytes:
     t = np.asarray(t, np.int64) - (epoch_high << 12)
     enc = evt3.Evt3Encoder()
     enc.state[:] = (1, high - epoch_high, -1, -1)
-    enc.last_t = t0 - (epoch_high << 12)
+    # The clock starts where the previous packet left it, not at the first event: the encoder sizes its
+    # word buffer by the TIME_HIGH steps from `last_t` on, and those steps cross the gap before this
+    # packet (4 words a wrap). From t0, a 10-hour pause before a packet of 3 events wrote ~8,600 words
+    # into a buffer of 20: heap corruption, a segfault in `evstream archive`.
+    enc.last_t = (high - epoch_high) << 12
     return struct.pack("<H", 0x8000 | (high & 0xFFF)) + enc.encode(t, x, y, p)
 
 
