@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import struct
 
-import numpy as np
-
 from . import evt3, mono
 from .event_packet import EventPacket, PacketError
 
@@ -34,14 +32,15 @@ EVT3_EPOCH_US = 1 << 24  # the EVT3 clock wraps every 2^24 µs ≈ 16.8 s
 _NS_PER_US = 1000
 
 
-def evt3_sensor_clock(t, x, y, p, from_time_high: int | None = None) -> bytes:
+def evt3_sensor_clock(t, x, y, p, from_time_high: int | None = None,
+                      encoder: evt3.Evt3Encoder | None = None) -> bytes:
     """EVT3 bytes of one packet on the 24-bit sensor clock, decodable alone.
 
     The packet opens with a TIME_HIGH word: the clock's time-high where the previous packet of the stream
     left it (`from_time_high`, absolute: t >> 12), or the first event's own when None; then TIME_HIGH steps
     up to the first event (wraps spelled 4095 -> 0, as a camera sends them), TIME_LOW, ADDR_Y and the
-    events. Built on `evt3.Evt3Encoder`, started at that time-high (state = [started, time-high,
-    time-low, y]).
+    events. Built on `evt3.Evt3Encoder` (`encoder`, reused across packets so its word buffer is too),
+    restarted at that time-high (state = [started, time-high, time-low, y]).
     """
     if len(t) == 0:
         return b""
@@ -51,17 +50,14 @@ def evt3_sensor_clock(t, x, y, p, from_time_high: int | None = None) -> bytes:
     high = t0 >> 12 if from_time_high is None else int(from_time_high)
     if high > t0 >> 12:
         raise ValueError(f"evt3: the clock is at time-high {high}, past the first event (t={t0} µs)")
-    # The words carry t mod 2^24 and steps forward only, so they are the same for t - E, E a whole number of
-    # 24-bit epochs: work near zero (the encoder sizes its output by the largest timestamp).
-    epoch_high = high >> 12 << 12
-    t = np.asarray(t, np.int64) - (epoch_high << 12)
-    enc = evt3.Evt3Encoder()
-    enc.state[:] = (1, high - epoch_high, -1, -1)
+    enc = encoder if encoder is not None else evt3.Evt3Encoder()
+    enc.state[:] = (1, high, -1, -1)
     # The clock starts where the previous packet left it, not at the first event: the encoder sizes its
     # word buffer by the TIME_HIGH steps from `last_t` on, and those steps cross the gap before this
     # packet (4 words a wrap). From t0, a 10-hour pause before a packet of 3 events wrote ~8,600 words
-    # into a buffer of 20: heap corruption, a segfault in `evstream archive`.
-    enc.last_t = (high - epoch_high) << 12
+    # into a buffer of 20: heap corruption, a segfault in `evstream archive`. Sized from there, Unix-µs
+    # timestamps (AEDAT4) cost nothing either: only the span from the clock counts.
+    enc.last_t = high << 12
     return struct.pack("<H", 0x8000 | (high & 0xFFF)) + enc.encode(t, x, y, p)
 
 
@@ -79,13 +75,14 @@ class PacketEncoder:
         self.width, self.height, self.encoding, self.frame_id = width, height, encoding, frame_id
         self.seq = 0
         self._time_high: int | None = None  # where the last EVT3 packet left the clock
+        self._evt3 = evt3.Evt3Encoder()
 
     def encode(self, t, x, y, p) -> EventPacket:
         if len(t) == 0:
             raise ValueError("a packet needs at least one event")
         t0_ns = int(t[0]) * _NS_PER_US
         if self.encoding == "evt3":
-            payload = evt3_sensor_clock(t, x, y, p, self._time_high)
+            payload = evt3_sensor_clock(t, x, y, p, self._time_high, self._evt3)
             self._time_high = int(t[-1]) >> 12
         else:
             payload = mono.encode(t, x, y, p, t0_ns)
