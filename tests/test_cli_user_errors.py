@@ -269,3 +269,27 @@ def test_archive_of_a_recording_with_a_long_pause_before_a_small_packet(tmp_path
     assert len(back) == len(paused)
     for f in "txyp":
         np.testing.assert_array_equal(getattr(back, f), getattr(paused, f))
+
+
+def _limit_memory():  # a child that would try to take the machine's memory gets MemoryError instead
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))
+
+
+def test_one_corrupt_coordinate_in_a_file_without_a_size_is_an_error_not_a_giant_sensor(tmp_path, real_data):
+    """The .npy twin has no sensor size: it is fitted to the events. One event at (60000, 60000) made a
+    60001x60001 sensor, and the cascade's per-pixel state (13 GiB a stage) ran the machine out of memory."""
+    a = np.load(real_data / "dvxplorer_320x240_tonic.npy")
+    a["x"][30000] = a["y"][30000] = 60000
+    bad = tmp_path / "one_bad_event.npy"
+    np.save(bad, a)
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "archive", bad, tmp_path / "out.mcap"],
+                       capture_output=True, text=True, timeout=120, preexec_fn=_limit_memory)
+    assert r.returncode == 1
+    line = one_line_error(r.stderr)
+    assert f"{bad}: event 30000: (60000, 60000) outside the 2048x2048 sensor" in line and "MemoryError" not in line
+    # a real recording without a size still gets its own sensor
+    rc = subprocess.run([sys.executable, "-m", "evstream.cli", "info", real_data / "dvxplorer_320x240_tonic.npy"],
+                        capture_output=True, text=True, timeout=120)
+    assert rc.returncode == 0 and "320x240" in rc.stdout
