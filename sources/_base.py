@@ -73,19 +73,20 @@ def as_geometry(g) -> Geometry | None:
     return Geometry(int(w), int(h))
 
 
-# No event camera has more than 2048 columns or rows (EVT 2.0/3.0 carry 11-bit addresses). A fitted size
-# is capped there, so one corrupt event far out (x = 60000) is an error naming it, where the reader knows
-# its byte, instead of a 60001x60001 "sensor" whose per-pixel state (13 GiB a stage) exhausts memory.
-MAX_FITTED_SIDE = 2048
+# No event camera has more than 2048 columns or rows (EVT 2.0/3.0 carry 11-bit addresses). A size the
+# data only claims — fitted to the events, or in an EventPacket from a file or the network — is held to
+# it, so one corrupt event (x = 60000) or packet is an error naming it, not a 60001x60001 "sensor" whose
+# per-pixel state (13 GiB a stage) exhausts memory. `--geometry` still sets any size.
+MAX_SENSOR_SIDE = 2048
 
 
 def fit_geometry(max_x: int, max_y: int, sensors: list[Geometry] | None = None) -> Geometry:
     """The smallest known sensor that holds (max_x, max_y), else the bounding box, at most
-    `MAX_FITTED_SIDE` a side (events beyond it are then outside the sensor: `--geometry` reads them)."""
+    `MAX_SENSOR_SIDE` a side (events beyond it are then outside the sensor: `--geometry` reads them)."""
     for g in KNOWN_SENSORS if sensors is None else sensors:
         if max_x < g.width and max_y < g.height:
             return g
-    return Geometry(min(MAX_FITTED_SIDE, max(1, int(max_x) + 1)), min(MAX_FITTED_SIDE, max(1, int(max_y) + 1)))
+    return Geometry(min(MAX_SENSOR_SIDE, max(1, int(max_x) + 1)), min(MAX_SENSOR_SIDE, max(1, int(max_y) + 1)))
 
 
 @numba.njit(cache=True, nogil=True)

@@ -27,7 +27,7 @@ from evstream.codecs.event_packet import DATATYPE, PacketError, decode_packet
 from evstream.codecs.packets import PacketDecoder
 from evstream.events import EventChunk, EventError, Geometry, NoiseClass, Validator
 
-from ._base import EventWarning
+from ._base import MAX_SENSOR_SIDE, EventWarning
 
 NAME = "MCAP (ROS 2 EventPacket)"
 FORMAT = "mcap"
@@ -127,6 +127,9 @@ class McapLogSource:
             if first.width == 0 or first.height == 0:
                 raise EventError(f"{self.path}: the EventPackets carry no sensor size (width/height 0); "
                                  "pass a geometry")
+            if max(first.width, first.height) > MAX_SENSOR_SIDE:
+                raise EventError(f"{self.path}: the EventPackets claim a {first.width}x{first.height} sensor, larger "
+                                 f"than any event camera ({MAX_SENSOR_SIDE} a side); pass a geometry if it is real")
             geometry = Geometry(first.width, first.height)
         self.geometry = geometry
 

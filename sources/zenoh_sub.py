@@ -34,6 +34,7 @@ from evstream.codecs.event_packet import PacketError, decode_packet
 from evstream.codecs.packets import PacketDecoder
 from evstream.events import EventChunk, EventError, Geometry
 
+from ._base import MAX_SENSOR_SIDE
 from .zenoh_session import open_session
 
 __all__ = ["FLOWS", "CameraStats", "End", "LivePacket", "ZenohSubscription", "camera_of", "now_ns"]
@@ -233,6 +234,9 @@ class ZenohSubscription:
         restart = self._track_seq(st, seq)
         geometry = self.geometry
         if packet.width and packet.height:
+            if max(packet.width, packet.height) > MAX_SENSOR_SIDE:  # one such packet took 13 GiB a stage
+                return self._malformed(st, key, f"sensor size {packet.width}x{packet.height}: larger than any "
+                                                f"event camera ({MAX_SENSOR_SIDE} a side)")
             try:
                 geometry = Geometry(packet.width, packet.height)
             except ValueError as e:

@@ -293,3 +293,63 @@ def test_one_corrupt_coordinate_in_a_file_without_a_size_is_an_error_not_a_giant
     rc = subprocess.run([sys.executable, "-m", "evstream.cli", "info", real_data / "dvxplorer_320x240_tonic.npy"],
                         capture_output=True, text=True, timeout=120)
     assert rc.returncode == 0 and "320x240" in rc.stdout
+
+
+def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(tmp_path):
+    """EventPackets carry width/height (uint32). One claiming 60000x60000 gave the replay, or a live
+    subscriber, a 60001x60001 pipeline: MemoryError, or the machine out of memory. A file is refused;
+    on the wire the packet is counted as malformed and the stream goes on (docs/live.md)."""
+    from mcap.writer import Writer
+    from test_zenoh_live import Procs, free_port
+
+    from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
+    from evstream.codecs.packets import to_packet
+    from sources.zenoh_session import open_session
+
+    t = np.arange(10, dtype=np.int64) + 1000
+    x = np.arange(10, dtype=np.uint16)
+    p = np.zeros(10, np.uint8)
+    path = tmp_path / "giant.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="ros2")
+        schema = w.register_schema(name=DATATYPE, encoding="ros2msg", data=MSGDEF.encode())
+        ch = w.register_channel(topic="/dvs/events", message_encoding="cdr", schema_id=schema)
+        data = encode_packet(to_packet(t, x, x, p, width=60000, height=60000))
+        w.add_message(ch, log_time=1000, publish_time=1000, data=data)
+        w.finish()
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "replay", path, "--save", tmp_path / "g.rrd"],
+                       capture_output=True, text=True, timeout=120, preexec_fn=_limit_memory)
+    assert r.returncode == 1
+    assert "claim a 60000x60000 sensor, larger than any event camera" in one_line_error(r.stderr)
+
+    procs = Procs(tmp_path)
+    try:
+        port = free_port()
+        ep = f"tcp/127.0.0.1:{port}"
+        procs.router(port)
+        n = len(procs.procs)
+        sub = subprocess.Popen([sys.executable, "-m", "evstream.cli", "subscribe", "evstream/*/events", "--connect", ep,
+                                "--until-end", "--json"], cwd=ROOT, preexec_fn=_limit_memory,
+                               stdout=open(tmp_path / f"out{n}.txt", "wb"), stderr=open(tmp_path / f"err{n}.txt", "wb"))
+        sub.n = n
+        procs.procs.append(sub)
+        procs.wait_for(sub, "subscribed to")
+        session = open_session(connect=[ep])
+        try:
+            pub = session.declare_publisher("evstream/evil/events")
+            deadline = time.monotonic() + 20
+            while not pub.matching_status.matching and time.monotonic() < deadline:
+                time.sleep(0.02)
+            pub.put(encode_packet(to_packet(t, x, x, p, width=60000, height=60000, seq=0)))
+            pub.put(encode_packet(to_packet(t + 1000, x, x, p, width=346, height=260, seq=1)))
+            time.sleep(0.5)
+            pub.delete()
+            time.sleep(0.5)
+        finally:
+            session.close()
+        got = procs.result(sub)["cameras"]["evil"]  # exit 0: the subscriber lived through it
+        assert got["malformed"] == 1 and got["events"] == 10 and got["ended"]
+        assert "sensor size 60000x60000: larger than any event camera" in procs.stderr(sub)
+    finally:
+        procs.kill_all()
