@@ -176,8 +176,12 @@ class FileSource:
             yield to_events(self, cols["t"][a:b], cols["x"][a:b], cols["y"][a:b], cols["p"][a:b], time_unit)
 
     def set_geometry(self, g: Geometry | None, source: str) -> None:
-        """Use `g` (from the header, or assumed) unless the user gave one."""
+        """Use `g` (from the header, or assumed) unless the user gave one; a claimed size beyond any event
+        camera is refused (a corrupt header: its per-pixel state would exhaust memory)."""
         if self.geometry_override is None and g is not None:
+            if max(g.width, g.height) > MAX_SENSOR_SIDE:
+                raise self.error(f"the file claims a {g} sensor ({source}), larger than any event camera "
+                                 f"({MAX_SENSOR_SIDE} a side); pass geometry=(width, height) if it is real")
             self.geometry = g
             self.geometry_source = source
 

@@ -18,6 +18,8 @@ import numpy as np
 
 from evstream.events import EventChunk, EventError, Geometry, Validator, concat
 
+from ._base import MAX_SENSOR_SIDE
+
 NAME = "native (.npz)"
 FORMAT = "native"
 DEFAULT_CHUNK_EVENTS = 50_000
@@ -66,6 +68,9 @@ class NativeSource:
             if missing:
                 raise EventError(f"{self.path}: native file lacks arrays {sorted(missing)}")
             self.geometry = geometry or Geometry(int(self._npz["width"]), int(self._npz["height"]))
+            if geometry is None and max(self.geometry.width, self.geometry.height) > MAX_SENSOR_SIDE:
+                raise EventError(f"{self.path}: the file claims a {self.geometry} sensor, larger than any event "
+                                 f"camera ({MAX_SENSOR_SIDE} a side); pass geometry=(width, height) if it is real")
             self.meta = json.loads(str(self._npz["meta"])) if "meta" in files else {}
             self._t = self._npz["t"]
         except ZIP_ERRORS as e:

@@ -353,3 +353,23 @@ def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(
         assert "sensor size 60000x60000: larger than any event camera" in procs.stderr(sub)
     finally:
         procs.kill_all()
+
+
+def test_a_header_claiming_a_giant_sensor_is_refused_before_memory_runs_out(tmp_path, real_data):
+    raw = (real_data / "prophesee_gen41_hd_evt3_expelliarmus.raw").read_bytes()
+    at = raw.index(b"% evt 3.0\n")
+    bad_raw = tmp_path / "claims.raw"
+    bad_raw.write_bytes(raw[:at] + b"% geometry 60000x60000\n" + raw[at:])  # a corrupt header line
+    a = dict(np.load(SHIPPED))
+    a["width"] = a["height"] = np.int64(60000)
+    bad_npz = tmp_path / "claims.npz"
+    np.savez(bad_npz, **a)
+    for bad in (bad_raw, bad_npz):
+        r = subprocess.run([sys.executable, "-m", "evstream.cli", "replay", bad, "--save", tmp_path / "x.rrd"],
+                           capture_output=True, text=True, timeout=120, preexec_fn=_limit_memory)
+        assert r.returncode == 1  # was: MemoryError for a 13 GiB cascade state (or the machine out of memory)
+        line = one_line_error(r.stderr)
+        assert f"{bad}: the file claims a 60000x60000 sensor" in line and "larger than any event camera" in line
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "info", bad_raw, "--geometry", "1280x720", "--json"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and '"events": 219596' in r.stdout  # the user's --geometry still reads it
