@@ -157,17 +157,25 @@ class StatsBins:
             if first > self.open_bin:  # the open bin closed before this chunk
                 self._close_through(first, ends, counts)
             last = int(b[-1])
-            local = (b - self.open_bin).astype(np.int64)
-            span = last - self.open_bin + 1
-            per = np.bincount(local * N_CLASSES + cls, minlength=span * N_CLASSES)
-            per = per.reshape(span, N_CLASSES)
+            local = (b - self.open_bin).astype(np.int64)  # non-decreasing, local[0] == 0
+            # counts of the bins that hold events only: a pause of days inside one chunk must not
+            # allocate a row per empty bin (2^42 µs took 9.8 GiB)
+            step = np.flatnonzero(np.diff(local)) + 1
+            bins = local[np.concatenate(([0], step))]  # the distinct bins, ascending
+            which = np.zeros(len(local), np.int64)
+            which[step] = 1
+            which = np.cumsum(which)  # each event's index among `bins`
+            per = np.bincount(which * N_CLASSES + cls, minlength=len(bins) * N_CLASSES)
+            per = per.reshape(len(bins), N_CLASSES)
             per[0] += self.open_counts
-            nonempty = np.flatnonzero(per.sum(axis=1))
-            closed = nonempty[nonempty < span - 1]
-            idx = self._with_gap_edges(closed, span - 1)
+            idx = self._with_gap_edges(bins[:-1], int(bins[-1]))  # every bin but the last closed
             if len(idx):
+                rows = np.zeros((len(idx), N_CLASSES), np.int64)
+                at = np.searchsorted(bins, idx)
+                held = bins[np.minimum(at, len(bins) - 1)] == idx
+                rows[held] = per[at[held]]
                 ends.append((self.open_bin + idx + 1) * self.bin_us + self.t0)
-                counts.append(per[idx])
+                counts.append(rows)
             self.open_bin = last
             self.open_counts = per[-1].copy()
         wm_bin = (t_end - self.t0) // self.bin_us if t_end > self.t0 else 0

@@ -373,3 +373,19 @@ def test_a_header_claiming_a_giant_sensor_is_refused_before_memory_runs_out(tmp_
     r = subprocess.run([sys.executable, "-m", "evstream.cli", "info", bad_raw, "--geometry", "1280x720", "--json"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and '"events": 219596' in r.stdout  # the user's --geometry still reads it
+
+
+def test_stats_bins_over_a_pause_of_months_take_memory_for_the_events_only():
+    """A camera paused 2^50 µs (36 years: a corrupt clock) inside one chunk: the statistics used a dense
+    row per 10 ms bin of the pause (TiB), MemoryError in replay; a 2^42 µs pause took 9.8 GiB."""
+    from sinks.rerun_sink import StatsBins
+
+    t = np.array([0, 5, 25_000, 1 << 50, (1 << 50) + 7], np.int64)
+    cls = np.array([0, 1, 2, 0, 1], np.uint8)
+    bins = StatsBins(0, 10_000)
+    ends, counts = bins.push(t, cls, int(t[-1]))
+    gap_first, gap_last = 3, (1 << 50) // 10_000 - 1  # the empty bins around the pause: two rows, not 10^11
+    assert ends.tolist() == [10_000, 20_000, 30_000, (gap_first + 1) * 10_000, (gap_last + 1) * 10_000]
+    assert counts.tolist() == [[1, 1, 0], [0, 0, 0], [0, 0, 1], [0, 0, 0], [0, 0, 0]]
+    end, last = bins.flush(int(t[-1]))
+    assert last.tolist() == [[1, 1, 0]] and end.tolist() == [int(t[-1]) + 1]
