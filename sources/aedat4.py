@@ -8,6 +8,7 @@ description; timestamps are the camera's absolute µs.
 
 from __future__ import annotations
 
+import builtins
 from collections.abc import Iterator
 
 import numpy as np
@@ -40,10 +41,13 @@ class Aedat4Source(FileSource):
 
     def __init__(self, path, stream_id: int | None = None, **options):
         super().__init__(path, **options)
+        self._check_description()
         try:
             streams = _aedat().Decoder(self.path).id_to_stream()
-        except Exception as e:  # the Rust decoder raises plain exceptions with its reason
-            raise self.error(f"unreadable AEDAT4 file: {e}") from None
+        except _DECODER_ERRORS as e:  # the Rust decoder raises plain exceptions with its reason, or panics
+            if isinstance(e, _NOT_OURS):
+                raise
+            raise self.error(f"unreadable AEDAT4 file: {_reason(e)}") from None
         events = {k: v for k, v in streams.items() if v.get("type") == "events"}
         if not events:
             raise self.error(f"no event stream (streams: { {k: v.get('type') for k, v in streams.items()} })")
@@ -54,6 +58,24 @@ class Aedat4Source(FileSource):
         self.set_geometry(Geometry(int(s["width"]), int(s["height"])), "stream description")
         self.details = {"streams": {int(k): v.get("type") for k, v in streams.items()},
                         "stream_id": self.stream_id}
+
+    def _check_description(self) -> None:
+        """The header's XML stream description must be UTF-8: the decoder takes it unchecked, and one
+        flipped byte there made it panic (a Rust traceback on stderr) instead of saying where."""
+        with builtins.open(self.path, "rb") as f:
+            head = f.read(_HEADER_OFFSET)
+            if len(head) < _HEADER_OFFSET:
+                return  # too short for a header: the decoder says so
+            size = int.from_bytes(head[-4:], "little")
+            header = f.read(min(size, 1 << 24))
+        start, end = header.find(b"<"), header.rfind(b">")
+        if start < 0 or end < start:
+            return
+        try:
+            header[start : end + 1].decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise self.error(f"corrupt AEDAT4 header: its stream description is not UTF-8 "
+                             f"({e.reason})", offset=_HEADER_OFFSET + start + e.start) from None
 
     def _blocks(self) -> Iterator[Block]:
         skipped: dict[str, int] = {}
@@ -85,11 +107,13 @@ class Aedat4Source(FileSource):
                     if fill == len(batch):
                         yield _block(batch.view(dtype))
                         fill = 0
-        except Exception as e:  # the Rust decoder's errors (truncated packet, bad LZ4 frame, ...)
+        except _DECODER_ERRORS as e:  # the Rust decoder's errors (truncated packet, bad LZ4 frame, ...)
+            if isinstance(e, _NOT_OURS):
+                raise
             if n_packets and "fill whole buffer" in str(e):  # a recording cut short: keep what was read
                 self.warn(f"truncated after {n_packets} packets ({e}); the events before are kept")
             else:
-                raise self.error(f"AEDAT4 decoding failed after {n_packets} packets: {e}") from None
+                raise self.error(f"AEDAT4 decoding failed after {n_packets} packets: {_reason(e)}") from None
         finally:
             self.counters = {f"{k}_packets_skipped": v for k, v in skipped.items()}
         if fill:
@@ -97,6 +121,16 @@ class Aedat4Source(FileSource):
 
 
 _BATCH_EVENTS = 1 << 16
+_HEADER_OFFSET = 18  # "#!AER-DAT4.0\r\n" then the header's size (uint32) then the header
+# A Rust panic in the decoder (a header byte flipped into half a UTF-8 character: "end byte index 1124
+# is not a char boundary") arrives as pyo3's PanicException, a BaseException: `except Exception` let it
+# through as a traceback. Catch every exception but the ones that are not about the file.
+_DECODER_ERRORS = BaseException
+_NOT_OURS = (KeyboardInterrupt, SystemExit, GeneratorExit, MemoryError)
+
+
+def _reason(e: BaseException) -> str:
+    return f"decoder panic: {e}" if type(e).__name__ == "PanicException" else str(e)
 
 
 def _block(ev: np.ndarray) -> Block:

@@ -389,3 +389,18 @@ def test_stats_bins_over_a_pause_of_months_take_memory_for_the_events_only():
     assert counts.tolist() == [[1, 1, 0], [0, 0, 0], [0, 0, 1], [0, 0, 0], [0, 0, 0]]
     end, last = bins.flush(int(t[-1]))
     assert last.tolist() == [[1, 1, 0]] and end.tolist() == [int(t[-1]) + 1]
+
+
+@pytest.mark.parametrize("byte", [1190, 2245])
+def test_an_aedat4_header_byte_flipped_names_the_byte_not_a_rust_panic(tmp_path, real_data, byte):
+    data = bytearray((real_data / "davis346_frames_imu_evlib.aedat4").read_bytes())
+    data[byte] ^= 0x80  # one bit: the XML description is no longer UTF-8
+    bad = tmp_path / "flipped.aedat4"
+    bad.write_bytes(bytes(data))
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "info", bad], capture_output=True, text=True,
+                       timeout=120)  # a child: the decoder's panic wrote a Rust backtrace to fd 2
+    assert r.returncode == 1, r.stderr
+    assert "panicked" not in r.stderr and "PanicException" not in r.stderr
+    line = one_line_error(r.stderr)
+    assert line == (f"evstream: error: {bad} at byte {byte}: corrupt AEDAT4 header: its stream description "
+                    "is not UTF-8 (invalid start byte)")
