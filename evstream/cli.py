@@ -200,6 +200,8 @@ class LagMeter:
 
 
 def cmd_replay(args) -> int:
+    import signal
+
     from sinks.rerun_sink import RerunSink
     from sinks.rerun_viewer import has_display, open_output
 
@@ -234,12 +236,14 @@ def cmd_replay(args) -> int:
             lag(batch)
             progress(batch)
 
-        stats = pipeline.run(paced(lag.watch(source), args.speed), [sink], on_batch=on_batch)
+        with _StopOnSignal() as stop:  # Ctrl-C: stop after the chunk in progress, then the summary as usual
+            stats = pipeline.run(stop.chunks(paced(lag.watch(source), args.speed)), [sink], on_batch=on_batch)
         progress.done()
         out.finish()
+        stopped_by = signal.Signals(stop.signum).name if stop.signum else None
         summary = {**stats.as_dict(), "points_logged": sink.points_logged, "points_dropped": sink.points_dropped,
                    **lag.as_dict(), "output": out.mode, "rrd": save, "grpc_url": out.grpc_url,
-                   "web_url": out.web_url}
+                   "web_url": out.web_url, "stopped_by": stopped_by}
         if args.json:
             print(json.dumps(summary), flush=True)
         else:
@@ -256,9 +260,12 @@ def cmd_replay(args) -> int:
                 print(f"wrote {save} — open it with:  {_rerun_command()} {save}   "
                       "(or: evstream replay --spawn / --serve)")
         sys.stdout.flush()
+        if stopped_by:
+            where = f"; {save} holds the events up to there" if save else ""
+            print(f"evstream: interrupted by {stopped_by}{where}", file=sys.stderr)
+            return 128 + int(stop.signum)
         if out.mode == "serve":
             print(f"serving {out.web_url} until Ctrl-C", file=sys.stderr, flush=True)
-            import signal
 
             def _stop(signum, frame):
                 raise KeyboardInterrupt

@@ -2,6 +2,7 @@
 The rule: one line on stderr naming the file (and where it can, the byte) and the reason, exit code 1
 (runtime) or 2 (usage); never an "internal error", a traceback or silently lost data."""
 
+import json
 import os
 import shutil
 import signal
@@ -404,3 +405,23 @@ def test_an_aedat4_header_byte_flipped_names_the_byte_not_a_rust_panic(tmp_path,
     line = one_line_error(r.stderr)
     assert line == (f"evstream: error: {bad} at byte {byte}: corrupt AEDAT4 header: its stream description "
                     "is not UTF-8 (invalid start byte)")
+
+
+def test_ctrl_c_in_a_replay_stops_it_with_its_summary_and_the_file_so_far(tmp_path):
+    rrd = tmp_path / "part.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "evstream.cli", "replay", ROOT / "recordings" / "turntable.npz",
+                             "--save", rrd, "--speed", "0.1", "--json"],  # 1 s of events in 10 s
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(4)
+        assert proc.poll() is None, proc.stderr.read()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130  # was: 'evstream: interrupted' alone, no account of what was written
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["stopped_by"] == "SIGINT" and 0 < summary["events_in"] < 254_078
+    assert one_line_error(err) == f"evstream: interrupted by SIGINT; {rrd} holds the events up to there"
+    assert rrd.stat().st_size > 100_000
