@@ -84,6 +84,16 @@ def _pipeline(args, source) -> Pipeline:
     return Pipeline([build("stage", {"kind": name})])
 
 
+def event_rate(hz: float) -> str:
+    """An event rate with the digits that say something: '5.4 M ev/s', '147 k ev/s', '512 ev/s'
+    (a fixed '{hz / 1e6:.1f} M' printed '0.0 M ev/s' for every run of a small recording)."""
+    if hz >= 1e6:
+        return f"{hz / 1e6:.1f} M ev/s"
+    if hz >= 1e3:
+        return f"{hz / 1e3:.0f} k ev/s"
+    return f"{hz:.0f} ev/s"
+
+
 class Progress:
     """One status line on a terminal (percent of the file where the reader knows it, events, events/s,
     noise fraction); silent when piped."""
@@ -106,7 +116,7 @@ class Progress:
         noise = 1 - s.per_class[NoiseClass.SIGNAL] / s.events_in if s.events_in else 0.0
         fraction = getattr(self.source, "fraction_read", None)
         done = f"{100 * fraction:3.0f}%  " if fraction is not None else ""
-        return f"{done}{s.events_in:,} events  {s.throughput_hz / 1e6:.1f} M ev/s  noise {100 * noise:.1f}%"
+        return f"{done}{s.events_in:,} events  {event_rate(s.throughput_hz)}  noise {100 * noise:.1f}%"
 
     def done(self) -> None:
         if self.enabled:
@@ -447,7 +457,7 @@ def cmd_frames(args) -> int:
 
 def _summary_line(s: RunStats) -> str:
     pc = s.per_class
-    return (f"{s.events_in:,} events in {s.wall_s:.2f} s ({s.throughput_hz / 1e6:.1f} M ev/s): "
+    return (f"{s.events_in:,} events in {s.wall_s:.2f} s ({event_rate(s.throughput_hz)}): "
             f"signal {pc[0]:,}, background {pc[1]:,}, hot pixel {pc[2]:,}")
 
 

@@ -89,7 +89,7 @@ def cmd_publish(args) -> int:
     from sources.zenoh_session import drain
     from sources.zenoh_sub import camera_of
 
-    from .cli import UsageError, _check_numbers, _open, _StopOnSignal
+    from .cli import UsageError, _check_numbers, _open, _StopOnSignal, event_rate
 
     _check_numbers(args, at_least_zero=("speed", "wait_subscribers", "drain_s"))
     if any(c in args.key for c in "*$?#"):
@@ -135,7 +135,7 @@ def cmd_publish(args) -> int:
         print(json.dumps(summary), flush=True)
     else:
         print(f"published {pub.events:,} events in {pub.packets:,} packets on {args.key} "
-              f"({summary['events_per_s'] / 1e6:.2f} M ev/s)")
+              f"({event_rate(summary['events_per_s'])})")
     return 0
 
 
