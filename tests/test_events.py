@@ -110,3 +110,30 @@ def test_of_class_matches_a_boolean_mask(seed, n, labelled):
         assert got.t_end == s.t_end and got.geometry == s.geometry
     unclassified = s.replace(cls=None)
     assert unclassified.of_class(NoiseClass.SIGNAL) is unclassified and len(unclassified.of_class(2)) == 0
+
+
+def first_invalid_reference(t, x, y, p, width, height, last_t):
+    """Plain Python: the first event outside the sensor or with polarity > 1, and the first going back in t
+    (before that event); -1 where none."""
+    back = -1
+    for i in range(len(t)):
+        if x[i] >= width or y[i] >= height or p[i] > 1:
+            return i, back
+        if back < 0 and t[i] < (t[i - 1] if i else last_t):
+            back = i
+    return -1, back
+
+
+@given(seed=st.integers(0, 2**32), n=st.integers(0, 60), last_t=st.integers(-5, 40))
+def test_first_invalid_kernel_matches_reference(seed, n, last_t):
+    from evstream.events import _first_invalid
+
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, 50, n)).astype(np.int64)
+    t[rng.random(n) < 0.05] = rng.integers(0, 50)  # a few steps back
+    x = rng.integers(0, 9, n).astype(np.uint16)  # 8 is outside the 8x6 sensor
+    y = rng.integers(0, 6 + (rng.random() < 0.3), n).astype(np.uint16)
+    p = (rng.random(n) < 0.5).astype(np.uint8) + (rng.random(n) < 0.02).astype(np.uint8) * 2
+    x[rng.random(n) < 0.9] %= 8  # most inside
+    got = _first_invalid(t, x, y, p, 8, 6, last_t)
+    assert tuple(got) == first_invalid_reference(t, x, y, p, 8, 6, last_t)
