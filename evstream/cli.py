@@ -457,7 +457,8 @@ def cmd_frames(args) -> int:
 
 def _summary_line(s: RunStats) -> str:
     pc = s.per_class
-    return (f"{s.events_in:,} events in {s.wall_s:.2f} s ({event_rate(s.throughput_hz)}): "
+    wall = f"{s.wall_s:.2f}" if s.wall_s >= 1 else f"{s.wall_s:.3g}"  # '0.01 s' and '1.2 M ev/s' disagreed
+    return (f"{s.events_in:,} events in {wall} s ({event_rate(s.throughput_hz)}): "
             f"signal {pc[0]:,}, background {pc[1]:,}, hot pixel {pc[2]:,}")
 
 

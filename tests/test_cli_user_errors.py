@@ -431,12 +431,14 @@ def test_the_summary_rate_adds_up_for_a_small_recording(tmp_path, capsys, real_d
     """6,676 events in 0.4 s were reported as '(0.0 M ev/s)'."""
     import re
 
-    rc, out, _ = run(["replay", real_data / "davis346_frames_imu_evlib.aedat4", "--save", tmp_path / "x.rrd"], capsys)
-    assert rc == 0
-    m = re.match(r"([\d,]+) events in ([\d.]+) s \(([\d.]+) (M |k |)ev/s\)", out)
-    n, wall, rate = int(m[1].replace(",", "")), float(m[2]), float(m[3]) * {"M ": 1e6, "k ": 1e3, "": 1}[m[4]]
-    assert n == 6_676 and rate > 0
-    assert abs(rate - n / wall) <= 0.05 * n / wall + 500  # the printed numbers agree, to their rounding
+    for _ in range(2):  # the second run has its kernels loaded: 5 ms, once printed as '0.01 s (1.2 M ev/s)'
+        rc, out, _ = run(["replay", real_data / "davis346_frames_imu_evlib.aedat4", "--save", tmp_path / "x.rrd"],
+                         capsys)
+        assert rc == 0
+        m = re.match(r"([\d,]+) events in ([\d.]+) s \(([\d.]+) (M |k |)ev/s\)", out)
+        n, wall, rate = int(m[1].replace(",", "")), float(m[2]), float(m[3]) * {"M ": 1e6, "k ": 1e3, "": 1}[m[4]]
+        assert n == 6_676 and rate > 0
+        assert abs(rate - n / wall) <= 0.05 * n / wall + 500, out  # the printed numbers agree, to their rounding
     from evstream.cli import event_rate
 
     assert [event_rate(r) for r in (5.44e6, 147_400, 512.4, 0)] == ["5.4 M ev/s", "147 k ev/s", "512 ev/s", "0 ev/s"]
