@@ -1,7 +1,9 @@
-"""Text files: one event per line, whitespace-separated numbers (the Event Camera Dataset's
-`t x y p`, t in seconds; other column orders are recognised). Read in blocks at constant memory.
+"""Text files: one event per line, numbers separated by spaces, tabs or commas (the Event Camera
+Dataset's `t x y p`, t in seconds; CSV; other column orders are recognised). Read in blocks at
+constant memory.
 
-Detected: `#`/`%` comment lines; an optional first line of two integers (`width height`); the time
+Detected: `#`/`%` comment lines; an optional first line of two integers (`width height`) or of the
+four column names (`t,x,y,p`, `timestamp x y polarity`, ...: they give the column order); the time
 unit (a decimal point in the time column means seconds, else µs; `time_unit=` overrides); polarity
 as 0/1 or -1/+1; the column order from the first lines (the rising column is t, the one of ±1/0 is
 p, x and y in that order; `columns=`, e.g. 'xytp', overrides). Without a size line, files up
@@ -19,7 +21,7 @@ import numpy as np
 
 from evstream.events import Geometry
 
-from ._base import Block, FileSource, fit_geometry, guess_columns, to_events
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, to_events
 
 NAME = "text (t x y p per line)"
 FORMAT = "text"
@@ -122,15 +124,31 @@ def _data_lines(head: bytes) -> list[bytes]:
     return [ln for ln in lines if ln and not ln.startswith((b"#", b"%", b"//"))]
 
 
+def _fields(line: bytes) -> list[bytes]:
+    """A line's fields, separated as the parser separates them: spaces, tabs or commas (CSV)."""
+    return [f for f in re.split(rb"[ \t,]+", line.strip()) if f]
+
+
+def _column_names(line: bytes) -> str | None:
+    """The column order a header line of four names gives ('t,x,y,p', 'x y polarity timestamp'), or None."""
+    names = [f.decode("ascii", "replace") for f in _fields(line)]
+    if len(names) != 4 or not all(re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", n) for n in names):
+        return None
+    f = find_fields(names)
+    if f is None or len(set(f.values())) != 4:
+        return None
+    return "".join(next(k for k, v in f.items() if v == n) for n in names)
+
+
 def probe(head: bytes, path: str) -> bool:
     if b"\x00" in head:
         return False
     lines = _data_lines(head)[:20]
     if not lines:
         return False
-    if re.fullmatch(rb"\d+\s+\d+", lines[0]):
+    if re.fullmatch(rb"\d+\s+\d+", lines[0]) or _column_names(lines[0]):
         lines = lines[1:]
-    ok = [len(ln.split()) == 4 and all(re.fullmatch(_NUM, f) for f in ln.split()) for ln in lines]
+    ok = [len(_fields(ln)) == 4 and all(re.fullmatch(_NUM, f) for f in _fields(ln)) for ln in lines]
     # a text file of events: the first line and most of the rest are 4 numbers (a bad line further
     # on is the reader's to report, by byte offset)
     return bool(lines) and ok[0] and sum(ok) >= len(ok) - max(1, len(ok) // 5)
@@ -152,12 +170,18 @@ class TextSource(FileSource):
             raise self.error("no event lines in the first 64 KiB")
         self.body_offset = 0
         m = re.fullmatch(rb"(\d+)\s+(\d+)", lines[0])
+        named = _column_names(lines[0])
+        self._skip_first_data_line = None  # the pattern of a header line before the first event
         if m:
             self.set_geometry(Geometry(int(m[1]), int(m[2])), "header line (width height)")
-            self._skip_first_data_line = True
+            self._skip_first_data_line = _SIZE_LINE
             lines = lines[1:]
-        else:
-            self._skip_first_data_line = False
+        elif named:
+            columns = columns or named  # the names say the order: no guessing from the values
+            self._skip_first_data_line = _NAMES_LINE
+            lines = lines[1:]
+            if not lines:
+                raise self.error("no event lines in the first 64 KiB")
         if columns is None:  # from the first lines: the rising column is t, the ±1/0 one p
             sample = np.empty((len(lines), 4))
             rows, _ = _parse_kernel(np.frombuffer(b"\n".join(lines[:1000]) + b"\n", np.uint8), sample)
@@ -165,7 +189,7 @@ class TextSource(FileSource):
         self.columns = columns
         tcol = columns.index("t")
         if time_unit is None:
-            time_unit = "s" if lines and b"." in lines[0].split()[tcol] else "us"
+            time_unit = "s" if lines and b"." in _fields(lines[0])[tcol] else "us"
         self.time_unit = time_unit
         if self.geometry is None:
             if self.file_size <= _SCAN_LIMIT_BYTES:
@@ -207,15 +231,20 @@ class TextSource(FileSource):
                 cut = buf.rfind(b"\n") + 1
                 block, rest = buf[:cut], buf[cut:]
                 if skip:
-                    # drop comment lines and the `width height` line before the first event
-                    m = re.match(rb"(?:\s*(?:#|%|//)[^\n]*\n|\s*\n)*\s*\d+[ \t]+\d+[ \t]*\r?\n", block)
+                    # drop comment lines and the `width height` or column-names line before the first event
+                    m = skip.match(block)
                     if m:
                         pos += m.end()
                         block = block[m.end():]
-                        skip = False
+                        skip = None
                 if block:
                     yield self._parse(block, pos)
                 pos += len(block)
+
+
+_LEAD = rb"(?:\s*(?:#|%|//)[^\n]*\n|\s*\n)*\s*"  # comment and blank lines
+_SIZE_LINE = re.compile(_LEAD + rb"\d+[ \t]+\d+[ \t]*\r?\n")
+_NAMES_LINE = re.compile(_LEAD + rb"[A-Za-z_][A-Za-z0-9_]*(?:[ \t,]+[A-Za-z_][A-Za-z0-9_]*){3}[ \t,]*\r?\n")
 
 
 def open(path, **options) -> TextSource:  # noqa: A001 - the format-module interface

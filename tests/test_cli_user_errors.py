@@ -442,3 +442,26 @@ def test_the_summary_rate_adds_up_for_a_small_recording(tmp_path, capsys, real_d
     from evstream.cli import event_rate
 
     assert [event_rate(r) for r in (5.44e6, 147_400, 512.4, 0)] == ["5.4 M ev/s", "147 k ev/s", "512 ev/s", "0 ev/s"]
+
+
+@pytest.mark.parametrize("header, sep, order", [
+    ("", ",", "txyp"),  # plain CSV: was 'unrecognised format' though the parser reads commas
+    ("t,x,y,p\n", ",", "txyp"),  # a CSV with its column names
+    ("timestamp x y polarity\n", " ", "txyp"),
+    ("x,y,polarity,timestamp\n", ", ", "xypt"),  # the names give the order
+])
+def test_csv_and_named_columns_read_the_same_events_as_the_text_file(tmp_path, real_data, header, sep, order):
+    from evstream.events import concat
+    from sources import open_source
+
+    src = real_data / "dvs128_lifetime_building_events.txt"
+    rows = [ln.split() for ln in src.read_text().splitlines()]
+    pick = ["txyp".index(c) for c in order]
+    path = tmp_path / "events.csv"
+    path.write_text(header + "".join(sep.join(r[i] for i in pick) + "\n" for r in rows))
+    want = concat(list(open_source(src)))
+    got_src = open_source(path)
+    got = concat(list(got_src))
+    assert got_src.format == "text" and got_src.columns == order and got.geometry == want.geometry
+    for f in "txyp":
+        np.testing.assert_array_equal(getattr(got, f), getattr(want, f))
