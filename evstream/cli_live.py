@@ -280,6 +280,13 @@ def cmd_subscribe(args) -> int:
         raise UsageError(f"--{viewer_flags[0]} and --{viewer_flags[1]}: choose one place for the Rerun output")
     if args.archive and not args.archive.endswith(".mcap"):
         raise UsageError(f"--archive {args.archive}: the archive's name must end in .mcap")
+    if args.archive:  # its folder now, not at the first packet (which ended the node mid-stream)
+        parts = Path(args.archive).parent.parts
+        folder = Path(*parts[: next((i for i, q in enumerate(parts) if "{camera}" in q), len(parts))] or ".")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OSError(f"--archive {args.archive}: cannot create {folder}: {e.strerror or e}") from None
     if args.republish and any(c in args.republish.replace("{camera}", "") for c in "*$?#"):
         raise UsageError(f"--republish {args.republish}: a concrete key (with {{camera}}), no wildcards")
     for name in ("depth", "max_packet_bytes"):

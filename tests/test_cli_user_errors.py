@@ -465,3 +465,14 @@ def test_csv_and_named_columns_read_the_same_events_as_the_text_file(tmp_path, r
     assert got_src.format == "text" and got_src.columns == order and got.geometry == want.geometry
     for f in "txyp":
         np.testing.assert_array_equal(getattr(got, f), getattr(want, f))
+
+
+def test_subscribe_archive_in_a_folder_that_cannot_exist_fails_at_start_naming_the_flag(tmp_path, capsys):
+    (tmp_path / "a_file").write_text("")
+    template = tmp_path / "a_file" / "sub" / "{camera}.mcap"
+    port = __import__("test_zenoh_live").free_port()  # nothing listens there: the check comes first
+    rc, _, err = run(["subscribe", "evstream/*/events", "--connect", f"tcp/127.0.0.1:{port}", "--archive",
+                      template], capsys)
+    assert rc == 1  # was: subscribed, then '[Errno 20] Not a directory' at the first packet, the node gone
+    assert one_line_error(err) == (f"evstream: error: --archive {template}: cannot create "
+                                   f"{tmp_path / 'a_file' / 'sub'}: Not a directory")
