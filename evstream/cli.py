@@ -260,8 +260,10 @@ def cmd_replay(args) -> int:
             print(_summary_line(stats))
             shown = sink.points_logged + sink.points_dropped
             if sink.points_dropped:
+                burst = int(sink.budget.capacity)  # saved-up points: a short recording draws more than rate x time
                 print(f"3D view: {sink.points_logged:,} of {shown:,} events drawn, {sink.points_dropped:,} "
-                      f"dropped by the point budget ({args.point_budget:,}/s); frames and stats use all")
+                      f"dropped by the point budget ({args.point_budget:,}/s of event time, bursts up to "
+                      f"{burst:,}); frames and stats use all")
             if lag.lags_s:
                 d = lag.as_dict()
                 print(f"real-time lag: median {d['lag_median_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "

@@ -476,3 +476,19 @@ def test_subscribe_archive_in_a_folder_that_cannot_exist_fails_at_start_naming_t
     assert rc == 1  # was: subscribed, then '[Errno 20] Not a directory' at the first packet, the node gone
     assert one_line_error(err) == (f"evstream: error: --archive {template}: cannot create "
                                    f"{tmp_path / 'a_file' / 'sub'}: Not a directory")
+
+
+def test_the_point_budget_line_accounts_for_what_was_drawn(tmp_path, capsys, real_data):
+    """95.9 ms of a Gen3 camera: 195,871 points drawn under a '1,000,000/s' budget read as a broken budget;
+    the line now names the saved-up burst the drawn count includes."""
+    import re
+
+    rc, out, _ = run(["replay", real_data / "prophesee_gen3_vga_evt2_faery.raw", "--save", tmp_path / "x.rrd"],
+                     capsys)
+    assert rc == 0
+    m = re.search(r"3D view: ([\d,]+) of ([\d,]+) events drawn, ([\d,]+) dropped by the point budget "
+                  r"\(([\d,]+)/s of event time, bursts up to ([\d,]+)\)", out)
+    assert m, out
+    drawn, total, dropped, rate, burst = (int(g.replace(",", "")) for g in m.groups())
+    assert drawn + dropped == total == 521_252
+    assert drawn <= rate * 95_871e-6 + burst + 1  # the numbers on the line add up
