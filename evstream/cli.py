@@ -524,6 +524,18 @@ def cmd_eval(args) -> int:
     from . import evaluation
 
     _check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
+    for flag, out in (("--json", args.json), ("--roc", args.roc)):  # before minutes of work, not after
+        if out:
+            try:
+                if not Path(out).parent.exists():
+                    Path(out).parent.mkdir(parents=True)
+                existed = Path(out).exists()
+                with open(out, "a"):
+                    pass
+                if not existed:  # only a probe: no empty file left behind if the run fails
+                    Path(out).unlink()
+            except OSError as e:
+                raise OSError(f"{flag} {out}: cannot write there: {e.strerror or e}") from None
     paths = list(args.recordings) or sorted(str(p) for p in Path("recordings").glob("*.npz"))
     if args.real:
         paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")
