@@ -75,7 +75,7 @@ def run() -> None:
                                 build("framer", {"kind": "fw"}) if frames else None)
                 pipe.run(open_source(path), [McapSink(out, keep_noise=keep_noise, frames=frames)])
 
-            eps = events_per_s(end_to_end, n, repeat=3)
+            eps = events_per_s(end_to_end, n, repeat=7)
             kind = "zipped" if path == zip_path else "plain"
             report(f"native ({kind}) -> paper -> MCAP, noise={keep_noise:d}, frames={frames:d}", eps,
                    peak_alloc_MB=f"{peak_alloc_bytes(end_to_end) / 1e6:.1f}")
