@@ -20,6 +20,7 @@ hostile packet gives a `PacketError` naming the field and byte offset, never a h
 
 from __future__ import annotations
 
+import functools
 import struct
 from dataclasses import dataclass
 
@@ -105,35 +106,37 @@ def _pad(offset: int, size: int) -> int:
     return -offset % size
 
 
+@functools.lru_cache(maxsize=256)
+def _layout(frame_id: str, encoding: str, big_endian: bool) -> struct.Struct:
+    """The packet's CDR up to its payload as one struct: the strings set every offset and padding, so each
+    (frame_id, encoding) has one layout (a packet then costs one pack, not a dozen small ones)."""
+    fid = len(_string("frame_id", frame_id))
+    enc = len(_string("encoding", encoding))
+    off = 12 + fid  # body offset (counted after the 4-byte header): stamp (8) + length (4) + frame_id
+    pad1 = _pad(off, 4)
+    off += pad1 + 8  # height, width
+    pad2 = _pad(off, 8)
+    off += pad2 + 20 + enc + 1  # seq, time_base, length, encoding, is_bigendian
+    pad3 = _pad(off, 4)
+    e = ">" if big_endian else "<"
+    return struct.Struct(f"{e}4siiI{fid}s{pad1}xII{pad2}xQQI{enc}sB{pad3}xI")
+
+
 def encode_packet(packet: EventPacket, *, big_endian: bool = False) -> bytes:
     """CDR bytes of `packet` (little-endian encapsulation unless `big_endian`)."""
-    e = ">" if big_endian else "<"
     sec, nanosec = packet.stamp
     if not -(1 << 31) <= sec < (1 << 31):
         raise PacketError(f"EventPacket.stamp_ns = {packet.stamp_ns} is outside the int32 seconds range")
     events = memoryview(packet.events).cast("B")
     if len(events) > MAX_PACKET_BYTES:
         raise PacketError(f"EventPacket.events is {len(events)} bytes; the limit is {MAX_PACKET_BYTES}")
-    frame_id = _string("frame_id", packet.frame_id)
-    encoding = _string("encoding", packet.encoding)
-    parts = [bytes((0, 0 if big_endian else 1, 0, 0)), struct.pack(e + "iiI", sec, nanosec, len(frame_id)), frame_id]
-    off = 12 + len(frame_id)  # body offset: stamp (8) + length (4) + frame_id
-    pad = _pad(off, 4)
-    parts.append(b"\x00" * pad + struct.pack(e + "II", _check_uint("height", packet.height, 32),
-                                             _check_uint("width", packet.width, 32)))
-    off += pad + 8
-    pad = _pad(off, 8)
-    parts.append(b"\x00" * pad + struct.pack(e + "QQI", _check_uint("seq", packet.seq, 64),
-                                             _check_uint("time_base", packet.time_base, 64), len(encoding)))
-    off += pad + 20
-    parts.append(encoding)
-    off += len(encoding)
-    parts.append(b"\x01" if packet.is_bigendian else b"\x00")
-    off += 1
-    pad = _pad(off, 4)
-    parts.append(b"\x00" * pad + struct.pack(e + "I", len(events)))
-    parts.append(events)
-    return b"".join(parts)
+    layout = _layout(packet.frame_id, packet.encoding, big_endian)
+    head = layout.pack(bytes((0, 0 if big_endian else 1, 0, 0)), sec, nanosec, len(packet.frame_id.encode()) + 1,
+                       packet.frame_id.encode(), _check_uint("height", packet.height, 32),
+                       _check_uint("width", packet.width, 32), _check_uint("seq", packet.seq, 64),
+                       _check_uint("time_base", packet.time_base, 64), len(packet.encoding.encode()) + 1,
+                       packet.encoding.encode(), 1 if packet.is_bigendian else 0, len(events))
+    return head + events
 
 
 class _Reader:

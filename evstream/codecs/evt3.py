@@ -286,11 +286,15 @@ def _check_kernel(t, x, y, p, prev):
 
 
 @numba.njit(cache=True, nogil=True)
-def _encode_kernel(t, x, y, p, out, state):
-    """Write EVT3 words for checked events, in stream order, into `out`; returns the word count.
+def _encode_kernel(t, x, y, p, out, state, last_t):
+    """Write EVT3 words for the events, in stream order, into `out`; returns the word count, or -1 - i when
+    event i cannot be written (`_check_kernel`, with `last_t` the stream's last time; nothing written).
 
     `state` = [started, time-high, time-low, y] carries the stream's position across calls.
     """
+    bad = _check_kernel(t, x, y, p, last_t)  # in the same call: a packet pays one dispatch, not two
+    if bad >= 0:
+        return -1 - bad
     n = len(t)
     k = 0
     started = state[0] != 0
@@ -375,26 +379,27 @@ class Evt3Encoder:
             raise ValueError(f"encode: arrays differ in length (t {n}, x {len(x)}, y {len(y)}, p {len(p)})")
         if n == 0:
             return b""
-        bad = _check_kernel(t, x, y, p, np.int64(self.last_t))
-        if bad >= 0:
+        t_last = int(t[-1])
+        wraps = (t_last >> 24) - (self.last_t >> 24)
+        if wraps > MAX_WRAPS_PER_CALL:
+            raise ValueError(
+                f"encode: timestamps jump from {self.last_t} to {t_last} µs ({wraps:,} wraps of the 24-bit "
+                "clock, 5 words each): subtract a time origin first (RAW writers keep it in the header)")
+        # room: 4 words per event at most, plus TIME_HIGH steps over long gaps (bounded by the span)
+        ramp = max(0, 5 * (wraps + 1) + ((t_last >> 12) - (self.last_t >> 12)) // _MAX_HIGH_STEP + 2)
+        if len(self._scratch) < 4 * n + ramp:
+            self._scratch = np.empty(4 * n + ramp, np.uint16)
+        out = self._scratch
+        k = _encode_kernel(t, x, y, p, out, self.state, np.int64(self.last_t))
+        if k < 0:
+            bad = -1 - k
             prev = t[bad - 1] if bad else self.last_t
             raise ValueError(
                 f"encode: event {self.events_in + bad} (t={t[bad]} µs, previous {prev} µs, x={x[bad]}, "
                 f"y={y[bad]}, p={p[bad]}) cannot be written: EVT3 needs non-decreasing t >= 0, x and y "
                 "< 2048, p 0 or 1"
             )
-        wraps = int(t[-1] >> 24) - (self.last_t >> 24)
-        if wraps > MAX_WRAPS_PER_CALL:
-            raise ValueError(
-                f"encode: timestamps jump from {self.last_t} to {t[-1]} µs ({wraps:,} wraps of the 24-bit "
-                "clock, 5 words each): subtract a time origin first (RAW writers keep it in the header)")
-        # room: 4 words per event at most, plus TIME_HIGH steps over long gaps (bounded by the span)
-        ramp = 5 * (wraps + 1) + int((t[-1] >> 12) - (self.last_t >> 12)) // _MAX_HIGH_STEP + 2
-        if len(self._scratch) < 4 * n + ramp:
-            self._scratch = np.empty(4 * n + ramp, np.uint16)
-        out = self._scratch
-        k = _encode_kernel(t, x, y, p, out, self.state)
-        self.last_t = int(t[-1])
+        self.last_t = t_last
         self.events_in += n
         return out[:k].tobytes()
 
