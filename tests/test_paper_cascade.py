@@ -244,8 +244,8 @@ def test_hot_pixels_are_found_and_signal_kept_on_a_synthetic_scene():
 
 
 @pytest.mark.parametrize("bad", [
-    {"radius_px": -1}, {"radius_px": 1.5}, {"window_us": 0}, {"mode": "fuzzy"}, {"density_hz": -1},
-    {"rho_rel": float("nan")},
+    {"radius_px": -1}, {"radius_px": 1.5}, {"radius_px": True}, {"radius_px": 100_000}, {"window_us": 0},
+    {"window_us": 1.5}, {"window_us": "20ms"}, {"mode": "fuzzy"}, {"density_hz": -1}, {"rho_rel": float("nan")},
 ])
 def test_density_rejects_bad_parameters(bad):
     with pytest.raises(ValueError):
@@ -254,7 +254,8 @@ def test_density_rejects_bad_parameters(bad):
 
 @pytest.mark.parametrize("bad", [
     {"rate_hz": 0}, {"rate_hz": 3.0}, {"n_bins": 256}, {"n_bins": 0}, {"n_bins": 64.0}, {"lam": 1.5}, {"lam": -0.1},
-    {"form": "sum"}, {"radius_px": 0}, {"radius_px": 200, "n_bins": 200},
+    {"form": "sum"}, {"radius_px": 0}, {"radius_px": 200, "n_bins": 200}, {"radius_px": True}, {"radius_px": 33},
+    {"n_bins": True},
 ])
 def test_dc_rejects_bad_parameters(bad):
     with pytest.raises(ValueError):

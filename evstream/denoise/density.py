@@ -31,9 +31,11 @@ from ..events import EventChunk, NoiseClass
 from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
+from .common import is_int
 from .rowsum import box_area, column_sum, padded_map, row_add
 
 ABSOLUTE, RELATIVE = 0, 1
+MAX_RADIUS_PX = 32  # L = 65: far past any neighbourhood of use, and a bounded map
 
 
 @functools.cache
@@ -141,10 +143,12 @@ class DensityFilter(InPlaceClassifier):
     _state: dict | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
-        if not isinstance(self.radius_px, int) or self.radius_px < 0:
-            raise ValueError(f"radius_px must be an integer >= 0 (L = 2r + 1 is odd), got {self.radius_px!r}")
-        if self.window_us <= 0:
-            raise ValueError(f"window_us must be positive, got {self.window_us}")
+        if not is_int(self.radius_px) or not 0 <= self.radius_px <= MAX_RADIUS_PX:
+            raise ValueError(f"radius_px must be an integer in 0..{MAX_RADIUS_PX} (L = 2r + 1 is odd), got "
+                             f"{self.radius_px!r}")
+        if not is_int(self.window_us) or self.window_us <= 0:
+            raise ValueError(f"window_us must be a positive whole number of µs, got {self.window_us!r}")
+        self.radius_px, self.window_us = int(self.radius_px), int(self.window_us)
         if self.mode not in ("relative", "absolute"):
             raise ValueError(f"mode must be 'relative' or 'absolute', got {self.mode!r}")
         if not self.density_hz >= 0 or not math.isfinite(self.density_hz):
