@@ -40,24 +40,27 @@ def _number(buf, i, n):
         neg = buf[i] == 45
         i += 1
     mant = np.int64(0)
-    digits = 0
+    digits = 0  # significant digits kept in `mant` (18 fit an int64); leading zeros do not use them up
+    seen = False
     scale = 0
     while i < n and 48 <= buf[i] <= 57:
+        seen = True
         if digits < 18:
             mant = mant * 10 + (buf[i] - 48)
-            digits += 1
+            digits += mant > 0
         else:
             scale += 1
         i += 1
     if i < n and buf[i] == 46:  # '.'
         i += 1
         while i < n and 48 <= buf[i] <= 57:
+            seen = True
             if digits < 18:
                 mant = mant * 10 + (buf[i] - 48)
-                digits += 1
+                digits += mant > 0
                 scale -= 1
             i += 1
-    if digits == 0:
+    if not seen:
         return 0.0, i, False
     if i < n and (buf[i] == 101 or buf[i] == 69):  # 'e' 'E'
         i += 1

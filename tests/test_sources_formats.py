@@ -296,6 +296,18 @@ def test_text_kernel_matches_python_float(lines):
     np.testing.assert_allclose(out[:rows], np.array(want).reshape(-1, 4), rtol=1e-14, atol=1e-290)  # subnormals aside
 
 
+@pytest.mark.parametrize("number", ["0.000000000123456789012345678", "000000000000000000001.5",
+                                    "-0.00000000000000000000", "1.23456789012345678901e-5",
+                                    "12345678901234567890123"])
+def test_text_kernel_keeps_18_significant_digits_after_leading_zeros(number):
+    from sources.text import _parse_kernel
+
+    out = np.empty((2, 4))
+    rows, bad = _parse_kernel(np.frombuffer(f"{number} 1 2 0\n".encode(), np.uint8), out)
+    assert (rows, bad) == (1, -1)
+    assert out[0, 0] == pytest.approx(float(number), rel=1e-15, abs=0)
+
+
 @given(st.text(alphabet="0123456789.-+eE \t\nx#", max_size=60))
 def test_text_kernel_flags_malformed_lines_like_python(s):
     from sources.text import _parse_kernel
