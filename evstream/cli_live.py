@@ -329,8 +329,11 @@ def cmd_subscribe(args) -> int:
                 for item in sub:
                     cam = node.cameras.get(item.camera)
                     if isinstance(item, End):
-                        if (cam is not None and args.until_end and len(node.cameras) >= args.until_end
-                                and all(s.ended for s in sub.cameras.values() if s.packets)):
+                        # cameras that sent anything count, even if every packet was malformed (no
+                        # pipeline was made for those, and waiting for one would never end)
+                        seen = [s for s in sub.cameras.values() if s.packets or s.malformed or s.oversized]
+                        if (args.until_end and any(s is sub.cameras[item.camera] for s in seen)
+                                and len(seen) >= args.until_end and all(s.ended for s in seen)):
                             stop_reason = "end of stream"
                             break
                         continue

@@ -229,6 +229,29 @@ def test_garbage_payloads_are_counted_and_skipped_then_ctrl_c_stops_cleanly(proc
     assert sum(len(c) for c in archived) == 3000
 
 
+def test_until_end_stops_for_a_camera_that_sent_only_malformed_packets(procs):
+    """No pipeline is made for a camera whose every packet is malformed; --until-end waited for it forever."""
+    port = free_port()
+    procs.router(port)
+    sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end", "--idle-s", "120")
+    session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        pub = session.declare_publisher("evstream/junk/events", congestion_control=zenoh.CongestionControl.BLOCK)
+        deadline = time.monotonic() + 10
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        pub.put(b"not a packet")
+        pub.put(b"\x00\x01\x00\x00" + b"\xff" * 64)
+        drain(session)
+        pub.delete()  # the end of this camera's stream
+        drain(session)
+        out = procs.result(sub, timeout_s=30)  # was: still waiting when --idle-s (120 s) ran out
+    finally:
+        session.close()
+    assert out["cameras"]["junk"]["malformed"] == 2 and out["cameras"]["junk"]["ended"]
+    assert out["stopped_by"] == "end of stream"
+
+
 def test_ros2_rmw_zenoh_event_packets(procs, tmp_path):
     """A ROS 2 node's EventPackets as rmw_zenoh publishes them: key <domain>/<topic>/<dds type>/<type hash>,
     CDR from mcap_ros2's serializer, one EVT3 stream cut into packets, rmw_zenoh's attachment written by
