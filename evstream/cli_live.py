@@ -393,6 +393,11 @@ def cmd_subscribe(args) -> int:
         print(json.dumps(summary), flush=True)
     else:
         _print_summary(summary)
+        if args.save:
+            from .cli import _rerun_command
+
+            files = [args.save] + [str(Path(args.save).with_suffix(f".{c}.rrd")) for c in list(node._recs)[1:]]
+            print(f"wrote {', '.join(files)} — open with:  {_rerun_command()} FILE", flush=True)
     if node.viewer is not None and node.viewer.mode == "serve":
         print(f"serving {node.viewer.web_url} until Ctrl-C", file=sys.stderr, flush=True)
         try:

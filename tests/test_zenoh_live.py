@@ -252,6 +252,21 @@ def test_until_end_stops_for_a_camera_that_sent_only_malformed_packets(procs):
     assert out["stopped_by"] == "end of stream"
 
 
+def test_subscribe_save_says_what_it_wrote(procs, tmp_path):
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs.router(port)
+    rrd = tmp_path / "live.rrd"
+    sub = procs.start("subscribe", "evstream/*/events", "--connect", ep, "--save", str(rrd), "--until-end",
+                      "--idle-s", "40")
+    procs.wait_for(sub, "subscribed to")
+    pub = procs.start("publish", str(BAR), "--key", "evstream/cam1/events", "--connect", ep, "--speed", "0",
+                      "--wait-subscribers", "10", "--drain-s", "30")
+    assert pub.wait(timeout=TIMEOUT_S) == 0 and sub.wait(timeout=TIMEOUT_S) == 0, procs.stderr(sub)
+    out = (tmp_path / f"out{sub.n}.txt").read_text()
+    assert f"wrote {rrd} — open with:" in out and rrd.stat().st_size > 10_000
+
+
 def test_ros2_rmw_zenoh_event_packets(procs, tmp_path):
     """A ROS 2 node's EventPackets as rmw_zenoh publishes them: key <domain>/<topic>/<dds type>/<type hash>,
     CDR from mcap_ros2's serializer, one EVT3 stream cut into packets, rmw_zenoh's attachment written by
