@@ -741,6 +741,11 @@ def _run(args) -> int:
             raise
         print(f"evstream: error: {e}", file=sys.stderr)
         return 1
+    except MemoryError as e:  # e.g. a --geometry far larger than the sensor: the state does not fit
+        if args.debug:
+            raise
+        print(f"evstream: error: out of memory: {e or 'an allocation failed'}", file=sys.stderr)
+        return 1
     except Exception as e:  # a bug of ours: still one line unless --debug
         if args.debug:
             raise

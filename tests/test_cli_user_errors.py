@@ -278,6 +278,15 @@ def _limit_memory():  # a child that would try to take the machine's memory gets
     resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))
 
 
+def test_a_geometry_too_large_for_memory_is_a_one_line_error(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "replay", SHIPPED, "--geometry", "60000x60000",
+                        "--save", tmp_path / "x.rrd"], capture_output=True, text=True, timeout=120,
+                       preexec_fn=_limit_memory)
+    assert r.returncode == 1  # was: 'internal error: MemoryError'
+    line = one_line_error(r.stderr)
+    assert line.startswith("evstream: error: out of memory: ") and "GiB" in line
+
+
 def test_one_corrupt_coordinate_in_a_file_without_a_size_is_an_error_not_a_giant_sensor(tmp_path, real_data):
     """The .npy twin has no sensor size: it is fitted to the events. One event at (60000, 60000) made a
     60001x60001 sensor, and the cascade's per-pixel state (13 GiB a stage) ran the machine out of memory."""
