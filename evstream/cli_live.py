@@ -309,6 +309,9 @@ def cmd_subscribe(args) -> int:
             print(f"web viewer: {node.viewer.web_url}", flush=True)
     session = _session(args)
     node.session = session
+    from sources.zenoh_session import watch_transports
+
+    node.transports = watch_transports(session, lambda m: print(f"evstream: {m}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
     status = _Status()

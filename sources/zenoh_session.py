@@ -14,7 +14,7 @@ import time
 
 import zenoh
 
-__all__ = ["DEFAULT_ENDPOINT", "MODES", "check_endpoint", "config", "drain", "open_session"]
+__all__ = ["DEFAULT_ENDPOINT", "MODES", "check_endpoint", "config", "drain", "open_session", "watch_transports"]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 MODES = ("peer", "client", "router")
@@ -79,3 +79,21 @@ def drain(session: zenoh.Session, timeout_s: float = 10.0) -> bool:
     except zenoh.ZError:
         return False
     return time.monotonic() - t0 < timeout_s
+
+
+def watch_transports(session: zenoh.Session, warn) -> object:
+    """Call `warn(message)` when a connection to a router or peer closes or comes back.
+
+    Zenoh reconnects by itself, so a subscriber whose router died would otherwise wait in silence while
+    whatever is published meanwhile is lost. Keep the returned listener alive for as long as you watch.
+    """
+    def on_event(event) -> None:
+        t = event.transport
+        what = str(t.whatami).split(".")[-1].lower()
+        if event.kind == zenoh.SampleKind.DELETE:
+            warn(f"lost the connection to {what} {t.zid}; waiting for it to come back (events published "
+                 "meanwhile do not arrive)")
+        else:
+            warn(f"connected to {what} {t.zid}")
+
+    return session.info.declare_transport_events_listener(on_event, history=False)

@@ -267,6 +267,18 @@ def test_subscribe_save_says_what_it_wrote(procs, tmp_path):
     assert f"wrote {rrd} — open with:" in out and rrd.stat().st_size > 10_000
 
 
+def test_subscriber_says_when_its_router_goes_and_comes_back(procs):
+    port = free_port()
+    router = procs.router(port)
+    sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none")
+    router.kill()  # was: the subscriber waited in silence while everything published meanwhile was lost
+    procs.wait_for(sub, "lost the connection to router")
+    procs.router(port)
+    procs.wait_for(sub, "evstream: connected to router", timeout_s=30)
+    sub.send_signal(signal.SIGINT)
+    assert procs.result(sub)["stopped_by"] == "SIGINT"
+
+
 def test_ros2_rmw_zenoh_event_packets(procs, tmp_path):
     """A ROS 2 node's EventPackets as rmw_zenoh publishes them: key <domain>/<topic>/<dds type>/<type hash>,
     CDR from mcap_ros2's serializer, one EVT3 stream cut into packets, rmw_zenoh's attachment written by
