@@ -310,7 +310,7 @@ def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(
     subscriber, a 60001x60001 pipeline: MemoryError, or the machine out of memory. A file is refused;
     on the wire the packet is counted as malformed and the stream goes on (docs/live.md)."""
     from mcap.writer import Writer
-    from test_zenoh_live import Procs, free_port
+    from test_zenoh_live import Procs, free_port, matched_publisher
 
     from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
     from evstream.codecs.packets import to_packet
@@ -347,10 +347,7 @@ def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(
         procs.wait_for(sub, "subscribed to")
         session = open_session(connect=[ep])
         try:
-            pub = session.declare_publisher("evstream/evil/events")
-            deadline = time.monotonic() + 20
-            while not pub.matching_status.matching and time.monotonic() < deadline:
-                time.sleep(0.02)
+            pub = matched_publisher(session, "evstream/evil/events", timeout_s=20)
             pub.put(encode_packet(to_packet(t, x, x, p, width=60000, height=60000, seq=0)))
             pub.put(encode_packet(to_packet(t + 1000, x, x, p, width=346, height=260, seq=1)))
             time.sleep(0.5)

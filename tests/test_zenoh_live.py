@@ -45,6 +45,15 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def matched_publisher(session, key: str, timeout_s: float = 10):
+    """A BLOCK publisher on `key`, once a subscriber matches it (or `timeout_s` passed)."""
+    pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+    deadline = time.monotonic() + timeout_s
+    while not pub.matching_status.matching and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return pub
+
+
 class Procs:
     """Child processes of one test: started with pipes, always killed at teardown (a test never hangs)."""
 
@@ -195,10 +204,7 @@ def test_garbage_payloads_are_counted_and_skipped_then_ctrl_c_stops_cleanly(proc
     rng = np.random.default_rng(0)
     session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
     try:
-        pub = session.declare_publisher("evstream/cam1/events", congestion_control=zenoh.CongestionControl.BLOCK)
-        deadline = time.monotonic() + 10
-        while not pub.matching_status.matching and time.monotonic() < deadline:
-            time.sleep(0.01)
+        pub = matched_publisher(session, "evstream/cam1/events")
         pub.put(good[0], attachment=encode_attachment(0, time.time_ns()))
         pub.put(rng.integers(0, 256, 5000, dtype=np.uint8).tobytes())  # random bytes
         pub.put(good[1][: len(good[1]) // 2])  # truncated
@@ -236,10 +242,7 @@ def test_until_end_stops_for_a_camera_that_sent_only_malformed_packets(procs):
     sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end", "--idle-s", "120")
     session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
     try:
-        pub = session.declare_publisher("evstream/junk/events", congestion_control=zenoh.CongestionControl.BLOCK)
-        deadline = time.monotonic() + 10
-        while not pub.matching_status.matching and time.monotonic() < deadline:
-            time.sleep(0.01)
+        pub = matched_publisher(session, "evstream/junk/events")
         pub.put(b"not a packet")
         pub.put(b"\x00\x01\x00\x00" + b"\xff" * 64)
         drain(session)
@@ -295,10 +298,7 @@ def test_ros2_rmw_zenoh_event_packets(procs, tmp_path):
     session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
     cuts = np.arange(0, len(t) + 20_000, 20_000)
     try:
-        pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-        deadline = time.monotonic() + 10
-        while not pub.matching_status.matching and time.monotonic() < deadline:
-            time.sleep(0.01)
+        pub = matched_publisher(session, key)
         for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
             payload = enc.encode(t[a:b], x[a:b], y[a:b], p[a:b])
             stamp_ns = 1_700_000_000_000_000_000 + int(t[a]) * 1000
