@@ -247,6 +247,7 @@ class Subscriber:
         self.geometry_of: dict = {}
         self.viewer = None
         self._recs: dict = {}
+        self.saved: list[str] = []  # the .rrd files written (with --save)
 
     def viewer_rec(self, camera: str):
         """The first camera logs into the viewer's recording; others get recordings of their own."""
@@ -259,7 +260,9 @@ class Subscriber:
 
             rec = rr.RecordingStream("evstream", recording_id=f"evstream-{camera}")
             if self.viewer.mode == "save":
-                rec.save(str(Path(self.viewer.path).with_suffix(f".{camera}.rrd")))
+                path = str(Path(self.viewer.path).with_suffix(f".{camera}.rrd"))
+                rec.save(path)
+                self.saved.append(path)
             else:
                 rec.connect_grpc(self.viewer.grpc_url)
         self._recs[camera] = rec
@@ -399,8 +402,7 @@ def cmd_subscribe(args) -> int:
         if args.save:
             from .cli import _rerun_command
 
-            files = [args.save] + [str(Path(args.save).with_suffix(f".{c}.rrd")) for c in list(node._recs)[1:]]
-            print(f"wrote {', '.join(files)} — open with:  {_rerun_command()} FILE", flush=True)
+            print(f"wrote {', '.join([args.save, *node.saved])} — open with:  {_rerun_command()} FILE", flush=True)
     if node.viewer is not None and node.viewer.mode == "serve":
         print(f"serving {node.viewer.web_url} until Ctrl-C", file=sys.stderr, flush=True)
         try:
