@@ -107,19 +107,20 @@ def _pad(offset: int, size: int) -> int:
 
 
 @functools.lru_cache(maxsize=256)
-def _layout(frame_id: str, encoding: str, big_endian: bool) -> struct.Struct:
-    """The packet's CDR up to its payload as one struct: the strings set every offset and padding, so each
-    (frame_id, encoding) has one layout (a packet then costs one pack, not a dozen small ones)."""
-    fid = len(_string("frame_id", frame_id))
-    enc = len(_string("encoding", encoding))
-    off = 12 + fid  # body offset (counted after the 4-byte header): stamp (8) + length (4) + frame_id
+def _layout(frame_id: str, encoding: str, big_endian: bool) -> tuple[struct.Struct, bytes, bytes]:
+    """The packet's CDR up to its payload as one struct, with the NUL-terminated strings it carries: the
+    strings set every offset and padding, so each (frame_id, encoding) has one layout (a packet then
+    costs one pack, not a dozen small ones)."""
+    fid = _string("frame_id", frame_id)
+    enc = _string("encoding", encoding)
+    off = 12 + len(fid)  # body offset (counted after the 4-byte header): stamp (8) + length (4) + frame_id
     pad1 = _pad(off, 4)
     off += pad1 + 8  # height, width
     pad2 = _pad(off, 8)
-    off += pad2 + 20 + enc + 1  # seq, time_base, length, encoding, is_bigendian
+    off += pad2 + 20 + len(enc) + 1  # seq, time_base, length, encoding, is_bigendian
     pad3 = _pad(off, 4)
     e = ">" if big_endian else "<"
-    return struct.Struct(f"{e}4siiI{fid}s{pad1}xII{pad2}xQQI{enc}sB{pad3}xI")
+    return struct.Struct(f"{e}4siiI{len(fid)}s{pad1}xII{pad2}xQQI{len(enc)}sB{pad3}xI"), fid, enc
 
 
 def encode_packet(packet: EventPacket, *, big_endian: bool = False) -> bytes:
@@ -130,12 +131,11 @@ def encode_packet(packet: EventPacket, *, big_endian: bool = False) -> bytes:
     events = memoryview(packet.events).cast("B")
     if len(events) > MAX_PACKET_BYTES:
         raise PacketError(f"EventPacket.events is {len(events)} bytes; the limit is {MAX_PACKET_BYTES}")
-    layout = _layout(packet.frame_id, packet.encoding, big_endian)
-    head = layout.pack(bytes((0, 0 if big_endian else 1, 0, 0)), sec, nanosec, len(packet.frame_id.encode()) + 1,
-                       packet.frame_id.encode(), _check_uint("height", packet.height, 32),
-                       _check_uint("width", packet.width, 32), _check_uint("seq", packet.seq, 64),
-                       _check_uint("time_base", packet.time_base, 64), len(packet.encoding.encode()) + 1,
-                       packet.encoding.encode(), 1 if packet.is_bigendian else 0, len(events))
+    layout, fid, enc = _layout(packet.frame_id, packet.encoding, big_endian)
+    head = layout.pack(bytes((0, 0 if big_endian else 1, 0, 0)), sec, nanosec, len(fid), fid,
+                       _check_uint("height", packet.height, 32), _check_uint("width", packet.width, 32),
+                       _check_uint("seq", packet.seq, 64), _check_uint("time_base", packet.time_base, 64),
+                       len(enc), enc, 1 if packet.is_bigendian else 0, len(events))
     return head + events
 
 
