@@ -32,10 +32,9 @@ from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
 from .common import is_int
-from .rowsum import box_area, column_sum, padded_map, row_add
+from .rowsum import MAX_RADIUS_PX, box_area, column_sum, padded_map, row_add
 
 ABSOLUTE, RELATIVE = 0, 1
-MAX_RADIUS_PX = 32  # L = 65: far past any neighbourhood of use, and a bounded map
 
 
 @functools.cache

@@ -21,6 +21,7 @@ from numba.extending import intrinsic
 from ..nowrap import ix
 
 VECTOR_BYTES = 32
+MAX_RADIUS_PX = 32  # the widest neighbourhood a stage takes (L = 65): far past any of use, and a bounded map
 
 
 def lanes(dtype) -> int:

@@ -34,8 +34,7 @@ from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
 from .common import is_int
-from .density import MAX_RADIUS_PX
-from .rowsum import box_area, column_sum, padded_map, row_add
+from .rowsum import MAX_RADIUS_PX, box_area, column_sum, padded_map, row_add
 
 DIFFERENCE, RATIO = 0, 1
 
@@ -183,9 +182,8 @@ class TimeSeriesFilter(InPlaceClassifier):
 
     def _init(self, g) -> dict:
         r = self.radius_px
-        cells = len(padded_map(g.width, g.height, r, np.uint16))
         cap = 1 << 12
-        return {"geometry": g, "pixel": np.zeros(cells, np.uint16),
+        return {"geometry": g, "pixel": padded_map(g.width, g.height, r, np.uint16),
                 "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
                 "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64)}
 
