@@ -47,7 +47,8 @@ def run() -> None:
         # event and the expiry loop's exit is always predicted. Its gap to the line above is what the
         # irregular expiry of real streams costs this CPU (docs/method.md, "Throughput").
         even = s.replace(t=np.linspace(int(s.t[0]), int(s.t[-1]), n).astype(np.int64))
-        report("control: coarse, one call, evenly spaced times", events_per_s(lambda even=even: DensityFilter()(even), n, 3))
+        eps = events_per_s(lambda even=even: DensityFilter()(even), n, repeat=3)
+        report("control: coarse, one call, evenly spaced times", eps)
     quality()
 
 
