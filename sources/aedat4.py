@@ -9,6 +9,8 @@ description; timestamps are the camera's absolute µs.
 from __future__ import annotations
 
 import builtins
+import os
+import struct
 from collections.abc import Iterator
 
 import numpy as np
@@ -55,27 +57,102 @@ class Aedat4Source(FileSource):
         if self.stream_id not in events:
             raise ValueError(f"stream_id {stream_id}: the event streams are {sorted(events)}")
         s = events[self.stream_id]
+        self._cut = self._check_packets({int(k) for k in streams})
         self.set_geometry(Geometry(int(s["width"]), int(s["height"])), "stream description")
         self.details = {"streams": {int(k): v.get("type") for k, v in streams.items()},
                         "stream_id": self.stream_id}
 
     def _check_description(self) -> None:
-        """The header's XML stream description must be UTF-8: the decoder takes it unchecked, and one
-        flipped byte there made it panic (a Rust traceback on stderr) instead of saying where."""
+        """Check the header before the Rust decoder reads it: it follows the header's flatbuffer offsets
+        unchecked, and one flipped byte there (an offset, or the XML description no longer UTF-8) made it
+        panic (a Rust traceback on stderr) instead of saying where. Keeps where the packets start and
+        the file data table's position (`_packets_at`, `_table_at`) for `_chain_break`."""
+        self._packets_at, self._table_at, self._info_at = None, -1, _HEADER_OFFSET
         with builtins.open(self.path, "rb") as f:
             head = f.read(_HEADER_OFFSET)
             if len(head) < _HEADER_OFFSET:
                 return  # too short for a header: the decoder says so
             size = int.from_bytes(head[-4:], "little")
             header = f.read(min(size, 1 << 24))
-        start, end = header.find(b"<"), header.rfind(b">")
+        if len(header) < size:
+            return  # a header cut short: the decoder says so
+        self._packets_at = _HEADER_OFFSET + size
+        info, self._table_at = self._header_fields(header)
+        start, end = info.find(b"<"), info.rfind(b">")
         if start < 0 or end < start:
             return
         try:
-            header[start : end + 1].decode("utf-8")
+            info[start : end + 1].decode("utf-8")
         except UnicodeDecodeError as e:
             raise self.error(f"corrupt AEDAT4 header: its stream description is not UTF-8 "
-                             f"({e.reason})", offset=_HEADER_OFFSET + start + e.start) from None
+                             f"({e.reason})", offset=self._info_at + start + e.start) from None
+
+    def _header_fields(self, h: bytes) -> tuple[bytes, int]:
+        """(infoNode XML bytes, dataTablePosition) of the IOHeader flatbuffer `h`, every offset checked
+        to stay inside it (a bad one is an error naming the byte that holds it)."""
+
+        def u(fmt: str, at: int, what: str) -> int:
+            n = struct.calcsize(fmt)
+            if not 0 <= at <= len(h) - n:
+                raise self.error(f"corrupt AEDAT4 header: {what} points outside the {len(h)}-byte header "
+                                 f"(to byte {_HEADER_OFFSET + at})", offset=_HEADER_OFFSET + where[0])
+            where[0] = at
+            return struct.unpack_from(fmt, h, at)[0]
+
+        where = [0]
+        root = u("<I", 0, "the root table offset")
+        vtable = root - u("<i", root, "the root table")
+        vtable_bytes = u("<H", vtable, "the table's field list")
+        table_bytes = u("<H", vtable + 2, "the table's size")
+        fields = [u("<H", vtable + 4 + 2 * i, "a field entry") for i in range(max(0, vtable_bytes - 4) // 2)]
+        for i, (off, n) in enumerate(zip(fields, (4, 8, 4))):
+            if off and off + n > table_bytes:
+                raise self.error(f"corrupt AEDAT4 header: field {i} lies at {off} bytes into a "
+                                 f"{table_bytes}-byte table", offset=_HEADER_OFFSET + vtable + 4 + 2 * i)
+        table_at = -1
+        if len(fields) > 1 and fields[1]:
+            table_at = u("<q", root + fields[1], "the data table position")
+        info = b""
+        if len(fields) > 2 and fields[2]:
+            at = root + fields[2]
+            s = at + u("<I", at, "the stream description offset")
+            n = u("<I", s, "the stream description")
+            u("<B", s + 4 + n - 1 if n else s, "the stream description's end")
+            where[0] = at
+            info = h[s + 4 : s + 4 + n]
+            self._info_at = _HEADER_OFFSET + s + 4
+        return info, table_at
+
+    def _check_packets(self, stream_ids) -> str:
+        """Walks the packet headers (int32 stream id, uint32 size) without decoding them; the decoder
+        trusts them, and a flipped size either panicked inside it or looked like the file's end.
+        A file whose data table (written last, at `_table_at`) is still there is complete: a header
+        with an unknown stream or running past the packets' end is then an error naming its byte.
+        Otherwise returns where the packets run past the file's end ('' if they do not): a cut."""
+        if self._packets_at is None:
+            return ""
+        size = os.path.getsize(self.path)
+        complete = 0 <= self._table_at <= size
+        end = self._table_at if complete else size
+        at, k, previous = self._packets_at, 0, None
+        with builtins.open(self.path, "rb") as f:
+            while at + 8 <= end:
+                f.seek(at)
+                stream_id, n = struct.unpack("<iI", f.read(8))
+                bad = (f"stream id {stream_id} (the file has {sorted(stream_ids)})" if stream_id not in stream_ids
+                       else f"a size of {n} bytes, past the packets' end at byte {end}" if at + 8 + n > end
+                       else None)
+                if bad is None:
+                    previous, at, k = at, at + 8 + n, k + 1
+                    continue
+                if not complete:
+                    return f"packet {k} at byte {at} claims {n} bytes; the file ends at byte {end}"
+                blame = f"; the size of packet {k - 1} at byte {previous} may be what is wrong" if k else ""
+                raise self.error(f"corrupt AEDAT4 packet header: packet {k} has {bad}{blame}", offset=at)
+        if complete and at != end:
+            raise self.error(f"corrupt AEDAT4 packet header: packet {k} starts {end - at} bytes before the "
+                             f"data table at byte {end}", offset=at)
+        return ""
 
     def _blocks(self) -> Iterator[Block]:
         skipped: dict[str, int] = {}
@@ -110,8 +187,8 @@ class Aedat4Source(FileSource):
         except _DECODER_ERRORS as e:  # the Rust decoder's errors (truncated packet, bad LZ4 frame, ...)
             if isinstance(e, _NOT_OURS):
                 raise
-            if n_packets and "fill whole buffer" in str(e):  # a recording cut short: keep what was read
-                self.warn(f"truncated after {n_packets} packets ({e}); the events before are kept")
+            if n_packets and "fill whole buffer" in str(e):  # cut short, or a packet size that lies
+                self.warn(f"truncated after {n_packets} packets ({self._cut or e}); the events before are kept")
             else:
                 raise self.error(f"AEDAT4 decoding failed after {n_packets} packets: {_reason(e)}") from None
         finally:
