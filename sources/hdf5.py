@@ -138,9 +138,19 @@ class Hdf5Source(FileSource):
                 return ds[a:b, field] if isinstance(field, int) else ds.fields(field)[a:b]
             return c[a:b]
         except _H5_ERRORS as e:
-            hint = (" (Prophesee HDF5 needs its ECF filter plugin: pip install hdf5plugin, or convert with "
-                    "Metavision)") if "filter" in str(e).lower() or "can't" in str(e).lower() else ""
-            raise self.error(f"cannot read events {a}..{b}: {e}{hint}") from None
+            ds = c[0] if isinstance(c, tuple) else c
+            missing = _missing_filters(ds)
+            if missing:  # Prophesee's ECF codec, or another plugin this HDF5 library lacks
+                raise self.error(f"cannot read events {a}..{b} of {ds.name}: it is compressed with "
+                                 f"{', '.join(missing)}, which this HDF5 library lacks (Prophesee HDF5 needs "
+                                 f"its ECF filter plugin: pip install hdf5plugin, or convert with Metavision)"
+                                 ) from None
+            where = _bad_chunk(ds, a, b)  # every filter is there: the stored data is damaged
+            if where is None:
+                raise self.error(f"cannot read events {a}..{b} of {ds.name}: {e}") from None
+            (lo, hi), offset = where
+            raise self.error(f"corrupt compressed data in {ds.name}: the chunk of events {lo}..{hi} does "
+                             f"not decompress ({e})", offset=offset) from None
 
     def _blocks(self) -> Iterator[Block]:
         step = max(1, self.block_bytes // 16)
@@ -179,3 +189,35 @@ def save(path, events, compression: str | None = "gzip") -> None:
         g = f.create_group("events")
         for k in "txyp":
             g.create_dataset(k, data=getattr(events, k), compression=compression)
+
+
+def _missing_filters(ds) -> list[str]:
+    """Names of the dataset's compression filters that this HDF5 library cannot run."""
+    import h5py
+
+    try:
+        plist = ds.id.get_create_plist()
+        filters = [plist.get_filter(i) for i in range(plist.get_nfilters())]
+    except _H5_ERRORS:
+        return []
+    return [f"filter {code} ({name.decode(errors='replace') or 'unnamed'})" for code, _, _, name in filters
+            if not h5py.h5z.filter_avail(code)]
+
+
+def _bad_chunk(ds, a: int, b: int):
+    """((first, end) event indices, byte offset) of the first chunk in rows a..b that does not read;
+    None if the dataset is not chunked or every chunk reads (the error path only: reads chunk by chunk)."""
+    rows = ds.chunks[0] if ds.chunks else 0
+    if not rows:
+        return None
+    for lo in range(a - a % rows, b, rows):
+        hi = min(lo + rows, ds.shape[0])
+        try:
+            ds[lo:hi]
+        except _H5_ERRORS:
+            try:
+                offset = ds.id.get_chunk_info_by_coord((lo,) + (0,) * (ds.ndim - 1)).byte_offset
+            except _H5_ERRORS:
+                offset = None
+            return (lo, hi), offset
+    return None
