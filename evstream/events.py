@@ -344,10 +344,12 @@ class Validator:
         if self.policy is TimestampPolicy.ERROR:
             i = 0 if first_back else int(back[0]) + 1
             prev = self.last_t if first_back else chunk.t[i - 1]
-            raise EventError(
+            e = EventError(
                 f"{self.where}: event {base + i}: timestamp {chunk.t[i]} µs goes back from {prev} µs "
                 f"(pass a timestamp policy of 'sort' or 'drop' to accept such streams)"
             )
+            e.event_index = base + i  # a reader with fixed-size records turns it into a byte offset
+            raise e
         if self.policy is TimestampPolicy.SORT and len(back):
             order = np.argsort(chunk.t, kind="stable")
             self.reordered += int(np.count_nonzero(order != np.arange(len(order))))

@@ -244,11 +244,16 @@ class FileSource:
                       f"(timestamp policy {self.timestamps!r})")
 
     def _emit(self, check: Validator, b: Block, next_t: int | None) -> EventChunk:
+        base = check.offset
         try:
             chunk = check(EventChunk.from_arrays(b.t, b.x, b.y, b.p, self.geometry))
         except EventError as e:
             if b.byte_end <= b.byte_start:  # a reader that cannot tell bytes (AEDAT4's decoder) says nothing false
                 raise
+            i = getattr(e, "event_index", None)
+            if b.record_bytes and i is not None:  # fixed-size records: the event's own byte
+                at = b.byte_start + (i - base) * b.record_bytes
+                raise EventError(f"{self.path} at byte {at}: {str(e).removeprefix(f'{self.path}: ')}") from None
             raise EventError(f"{e} [in bytes {b.byte_start}..{b.byte_end}]") from None
         if next_t is not None and len(chunk) and next_t >= chunk.t[-1]:
             chunk = chunk.replace(t_end=next_t)

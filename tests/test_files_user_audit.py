@@ -135,3 +135,20 @@ def test_hdf5_compressed_with_a_filter_this_library_lacks_says_which(tmp_path):
     assert rc == 1
     line = one_line(err)
     assert str(path) in line and "filter 36559" in line and "ECF filter plugin" in line
+
+
+# -- fixed-size records: a timestamp going back names its event's byte --------------------------------
+@pytest.mark.parametrize("name", ["nmnist_sample.bin", "ncaltech101_faces_easy_0001.bin", "dvsgesture_slayer_1.bs2"])
+def test_nmnist_timestamp_flipped_names_the_events_byte_not_a_250000_byte_range(tmp_path, real_data, name):
+    """N-MNIST records are 5 bytes (x, y, pol|t[22:16], t[15:8], t[7:0]); a flipped high timestamp byte in
+    event k makes event k+1 go back. The error said '[in bytes 0..250000]'; event k+1 is at byte 5(k+1)."""
+    data = bytearray((real_data / name).read_bytes())
+    k = len(data) // 5 // 3
+    data[5 * k + 2] ^= 0x40  # +2^22 µs on event k's clock
+    bad = tmp_path / name
+    bad.write_bytes(bytes(data))
+    rc, _, err = cli("info", bad)
+    assert rc == 1
+    line = one_line(err)
+    assert line.startswith(f"evstream: error: {bad} at byte {5 * (k + 1)}: event {k + 1}: timestamp ")
+    assert "in bytes" not in line
