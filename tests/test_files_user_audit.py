@@ -152,3 +152,58 @@ def test_nmnist_timestamp_flipped_names_the_events_byte_not_a_250000_byte_range(
     line = one_line(err)
     assert line.startswith(f"evstream: error: {bad} at byte {5 * (k + 1)}: event {k + 1}: timestamp ")
     assert "in bytes" not in line
+
+
+# -- what the viewer shows: a real recording's .rrd read back with rerun's own reader -------------------
+def test_replay_rrd_puts_each_noise_class_on_its_own_entity_and_colour(tmp_path, real_data):
+    """README: signal blue, background activity orange, hot pixels magenta, each class its own entity
+    under events/. Read the saved .rrd back (rerun 0.41's RrdReader) and compare the points per entity
+    with the classes the same pipeline gives the events, and the printed summary."""
+    import json
+    from collections import defaultdict
+
+    import numpy as np
+    from rerun.chunk import RrdReader
+
+    from evstream.events import NoiseClass, concat
+    from evstream.pipeline import Pipeline, build
+    from sources import open_source
+
+    name = "dvxplorer_320x240_tonic.aedat4"  # 190 k events/s: under the default point budget, all drawn
+    rrd = tmp_path / "out.rrd"
+    rc, out, err = cli("replay", real_data / name, "--denoise", "paper", "--save", rrd, "--json")
+    assert rc == 0, err
+    summary = json.loads(out)
+    src = open_source(real_data / name)
+    pipe = Pipeline([build("stage", {"kind": "paper"})])
+    classes = concat([pipe.process(c).events for c in src], src.geometry).classes()
+    want = np.bincount(classes, minlength=3)
+    assert want.sum() == summary["events_in"] == 111_954 and summary["points_dropped"] == 0
+    assert [summary["events_signal"], summary["events_background"], summary["events_hot_pixel"]] == want.tolist()
+    assert want.min() > 0  # the recording has all three classes: the test can tell them apart
+
+    points, class_ids, context = defaultdict(int), {}, None
+    for chunk in RrdReader(rrd).stream():
+        rb = chunk.to_record_batch()
+        cols = rb.schema.names
+        if "Points3D:positions" in cols and not chunk.is_static:
+            points[chunk.entity_path] += sum(len(r) for r in rb.column(cols.index("Points3D:positions")).to_pylist()
+                                             if r is not None)
+        if "Points3D:class_ids" in cols and chunk.is_static:
+            class_ids[chunk.entity_path] = rb.column(cols.index("Points3D:class_ids")).to_pylist()[0]
+        if "AnnotationContext:context" in cols:
+            context = rb.column(cols.index("AnnotationContext:context")).to_pylist()[0]
+    entities = {NoiseClass.SIGNAL: "/events/signal", NoiseClass.BACKGROUND: "/events/noise/background",
+                NoiseClass.HOT_PIXEL: "/events/noise/hot_pixel"}
+    assert {e: points[e] for e in entities.values()} == {entities[c]: int(want[c]) for c in NoiseClass}
+    assert {e: class_ids[e] for e in entities.values()} == {entities[c]: [int(c)] for c in NoiseClass}
+    flat = context
+    while isinstance(flat, list) and len(flat) == 1 and isinstance(flat[0], list):
+        flat = flat[0]
+    info = {d["class_id"]: d["class_description"]["info"] for d in flat}
+    assert {c: info[int(c)]["label"] for c in NoiseClass} == {
+        NoiseClass.SIGNAL: "signal", NoiseClass.BACKGROUND: "background activity", NoiseClass.HOT_PIXEL: "hot pixel"}
+    r, g, b, _ = zip(*(info[int(c)]["color"].to_bytes(4, "big") for c in NoiseClass))  # RGBA, packed
+    assert b[0] > max(r[0], g[0])  # signal: blue
+    assert r[1] > g[1] > b[1]  # background activity: orange
+    assert min(r[2], b[2]) > 2 * g[2]  # hot pixel: magenta
