@@ -98,10 +98,10 @@ class Progress:
     """One status line on a terminal (percent of the file where the reader knows it, events, events/s,
     noise fraction); silent when piped."""
 
-    def __init__(self, source=None, stream=sys.stderr):
+    def __init__(self, source=None, stream=None):
         self.source = source
-        self.stream = stream
-        self.enabled = stream.isatty()
+        self.stream = sys.stderr if stream is None else stream  # at call time: stderr may have been swapped
+        self.enabled = self.stream.isatty()
         self._last = 0.0
 
     def __call__(self, batch) -> None:
