@@ -389,3 +389,50 @@ def test_main_works_after_the_stderr_it_was_imported_under_is_closed(tmp_path, r
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "frames" in r.stdout and "closed file" not in r.stderr
+
+
+# -- damage the raw formats cannot see: we read exactly what the bytes say --------------------------------
+def _body_start(data: bytes) -> int:
+    at = 0
+    while data.startswith(b"%", at):
+        at = data.index(b"\n", at) + 1
+    return at
+
+
+@pytest.mark.parametrize("name, word", [("prophesee_gen41_hd_evt3_expelliarmus.raw", 2),
+                                        ("prophesee_gen3_vga_evt2_faery.raw", 4)])
+@pytest.mark.parametrize("fraction", [0.37, 0.71])
+def test_raw_cut_on_a_word_boundary_reads_as_a_shorter_recording(tmp_path, real_data, capsys, name, word,
+                                                                   fraction):
+    """Documented in docs/formats.md: no length, no checksum, so a cut between words is invisible; the
+    events read are those a spec-literal decoder reads from the same bytes, and no warning is made up."""
+    data = (real_data / name).read_bytes()
+    body = _body_start(data)
+    cut = body + int((len(data) - body) * fraction) // word * word
+    bad = tmp_path / name
+    bad.write_bytes(data[:cut])
+    want = _rows_sorted(independent(bad))
+    assert 0 < len(want) < len(_rows_sorted(independent(real_data / name)))
+    rc, out, err = run(capsys, "convert", bad, tmp_path / "out.h5")
+    assert rc == 0 and err == ""
+    np.testing.assert_array_equal(_rows_sorted(independent(tmp_path / "out.h5")), want)
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.52, 0.77, 0.9])
+def test_evt2_flipped_word_type_is_read_as_the_bytes_say(tmp_path, real_data, capsys, fraction):
+    """A flipped type nibble (an event becoming a word type we skip) loses that event without an error:
+    the bytes are a valid EVT2 stream. Our events equal the spec-literal decode of the damaged bytes."""
+    name = "prophesee_gen3_vga_evt2_faery.raw"
+    data = bytearray((real_data / name).read_bytes())
+    body = _body_start(bytes(data))
+    words = np.frombuffer(bytes(data), "<u4", (len(data) - body) // 4, body)
+    i = int(len(words) * fraction)
+    i += int(np.argmax(words[i:] >> 28 <= 1))  # the next CD event word
+    data[body + 4 * i + 3] ^= 0xA0  # type 0/1 -> 0xA/0xB (EXT_TRIGGER / unknown): not an event any more
+    bad = tmp_path / name
+    bad.write_bytes(bytes(data))
+    want = _rows_sorted(independent(bad))
+    assert len(want) == 521_251
+    rc, out, err = run(capsys, "convert", bad, tmp_path / "out.h5")
+    assert rc == 0, err
+    np.testing.assert_array_equal(_rows_sorted(independent(tmp_path / "out.h5")), want)
