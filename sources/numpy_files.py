@@ -47,7 +47,7 @@ class NumpySource(FileSource):
                 magic = f.read(6)
             if magic == b"\x93NUMPY":
                 self.format = "npy"
-                self._cols = self._from_array(np.load(self.path, mmap_mode="r", allow_pickle=False), columns)
+                self._cols = self._from_array(self._load_npy(), columns)
             else:
                 self.format = "npz"
                 self._npz = np.load(self.path, allow_pickle=False)
@@ -69,6 +69,27 @@ class NumpySource(FileSource):
                 my = max(my, int(np.max(self._cols["y"][a : a + step])))
             self.set_geometry(fit_geometry(mx, my), "fitted to the events (the file has no size)")
         self.details = {"events": n, "time_unit": self.time_unit}
+
+    def _load_npy(self) -> np.ndarray:
+        """The .npy memory-mapped; a file shorter than its header promises (np.load said only "mmap
+        length is greater than file size") keeps its whole rows, with a warning naming the byte."""
+        with builtins.open(self.path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            if version not in ((1, 0), (2, 0)):  # 3.0 (UTF-8 field names): np.load's own checks
+                return np.load(self.path, mmap_mode="r", allow_pickle=False)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran, dtype = read(f)
+            start = f.tell()
+        row_bytes = dtype.itemsize * int(np.prod(shape[1:], dtype=np.int64))
+        want = start + row_bytes * (shape[0] if shape else 1)
+        if self.file_size >= want or not shape or fortran or row_bytes == 0:
+            return np.load(self.path, mmap_mode="r", allow_pickle=False)
+        rows = (self.file_size - start) // row_bytes
+        self.warn(f"truncated: the header promises {shape[0]} rows ({want} bytes) but the file ends at byte "
+                  f"{self.file_size}; the {rows} whole rows before byte {start + rows * row_bytes} are kept")
+        if rows == 0:
+            return np.zeros((0, *shape[1:]), dtype)
+        return np.memmap(self.path, dtype, "r", start, (rows, *shape[1:]))
 
     def _from_array(self, a: np.ndarray, columns: str) -> dict:
         if a.dtype.names:

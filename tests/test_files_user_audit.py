@@ -436,3 +436,44 @@ def test_evt2_flipped_word_type_is_read_as_the_bytes_say(tmp_path, real_data, ca
     rc, out, err = run(capsys, "convert", bad, tmp_path / "out.h5")
     assert rc == 0, err
     np.testing.assert_array_equal(_rows_sorted(independent(tmp_path / "out.h5")), want)
+
+
+# -- .npy shorter than its header says -----------------------------------------------------------------
+@pytest.mark.parametrize("fraction", [0.0002, 0.33, 0.9999])
+def test_npy_cut_short_warns_naming_the_byte_and_keeps_the_whole_rows(tmp_path, real_data, capsys, fraction):
+    """It was 'unreadable NumPy file: ValueError: mmap length is greater than file size' (exit 1, no
+    byte, no 'truncated'); now it reads like the other formats' cut tails: the whole rows, a warning."""
+    name = "dvxplorer_320x240_tonic.npy"
+    data = (real_data / name).read_bytes()
+    full = np.load(real_data / name)
+    start = len(data) - full.nbytes
+    cut = max(start + 7, int(len(data) * fraction))
+    bad = tmp_path / name
+    bad.write_bytes(data[:cut])
+    rows = (cut - start) // full.dtype.itemsize
+    rc, out, err = run(capsys, "convert", bad, tmp_path / "out.h5")
+    assert rc == 0, err
+    line = one_line(err)
+    assert line == (f"evstream: warning: {bad}: truncated: the header promises {len(full)} rows ({len(data)} "
+                    f"bytes) but the file ends at byte {cut}; the {rows} whole rows before byte "
+                    f"{start + rows * full.dtype.itemsize} are kept")
+    got = independent(tmp_path / "out.h5")
+    np.testing.assert_array_equal(got, np.column_stack([full[k][:rows].astype(np.int64) for k in "txyp"]))
+
+
+def test_npy_table_of_four_columns_cut_short_keeps_its_whole_rows(tmp_path, capsys):
+    t = np.arange(1000, dtype=np.float64) * 1e-4
+    table = np.column_stack((t, np.arange(1000) % 30, np.arange(1000) % 20, np.arange(1000) % 2))
+    path = tmp_path / "table.npy"
+    np.save(path, table)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) - 5])  # the last row loses 5 of its 32 bytes
+    rc, out, err = run(capsys, "info", path, "--json")
+    assert rc == 0 and "truncated" in one_line(err) and "999 whole rows" in err
+    assert json_loads(out)["events"] == 999
+
+
+def json_loads(text):
+    import json
+
+    return json.loads(text)
