@@ -475,8 +475,13 @@ def cmd_convert(args) -> int:
         raise UsageError("convert: the output would overwrite the input")
     source = _open(args.source, args)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if kind == ".raw":
-        n = prophesee_raw.save(out, source, source.geometry, version=f"evt{args.evt}")
+    if kind == ".raw":  # streamed: into a side file, renamed once whole, so a failure leaves no valid-looking
+        part = out.with_name(out.name + ".part")  # half recording (nor clobbers an older OUT)
+        try:
+            n = prophesee_raw.save(part, source, source.geometry, version=f"evt{args.evt}")
+            os.replace(part, out)
+        finally:
+            part.unlink(missing_ok=True)
         fmt = f"evt{args.evt}"
     else:
         from .events import concat

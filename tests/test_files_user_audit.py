@@ -477,3 +477,22 @@ def json_loads(text):
     import json
 
     return json.loads(text)
+
+
+# -- convert: a failure leaves no half recording ----------------------------------------------------------
+@pytest.mark.parametrize("evt", ["3", "2"])
+def test_convert_to_raw_that_fails_midway_leaves_no_valid_looking_half_file(tmp_path, real_data, capsys, evt):
+    """`convert` streams RAW output; when the input turned out bad at event 401,328 it left OUT.raw with
+    the 401,328 events before — a well-formed EVT file nothing marks as partial — and had already
+    destroyed an older OUT.raw. Now the output appears only whole; an older one stays."""
+    name = "prophesee_gen3_vga_evt2_faery.raw"
+    data = bytearray((real_data / name).read_bytes())
+    data[int(len(data) * 0.77)] ^= 0xFF  # a coordinate outside the sensor, three quarters in
+    bad = tmp_path / name
+    bad.write_bytes(bytes(data))
+    out = tmp_path / "out.raw"
+    out.write_bytes(b"an older recording")
+    rc, _, err = run(capsys, "convert", bad, out, "--evt", evt)
+    assert rc == 1 and "outside the 640x480 sensor" in one_line(err)
+    assert out.read_bytes() == b"an older recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, "out.raw"])
