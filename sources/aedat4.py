@@ -70,12 +70,11 @@ class Aedat4Source(FileSource):
         self._packets_at, self._table_at, self._info_at = None, -1, _HEADER_OFFSET
         with builtins.open(self.path, "rb") as f:
             head = f.read(_HEADER_OFFSET)
-            if len(head) < _HEADER_OFFSET:
-                return  # too short for a header: the decoder says so
-            size = int.from_bytes(head[-4:], "little")
-            header = f.read(min(size, 1 << 24))
-        if len(header) < size:
-            return  # a header cut short: the decoder says so
+            size = int.from_bytes(head[-4:], "little") if len(head) == _HEADER_OFFSET else None
+            header = f.read(min(size, 1 << 24)) if size is not None else b""
+        if size is None or len(header) < size:  # the decoder said only "failed to fill whole buffer"
+            claim = "" if size is None else f" of {size} bytes"
+            raise self.error(f"truncated in its header{claim}: the file ends at byte {self.file_size}")
         self._packets_at = _HEADER_OFFSET + size
         info, self._table_at = self._header_fields(header)
         start, end = info.find(b"<"), info.rfind(b">")

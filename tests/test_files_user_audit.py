@@ -496,3 +496,15 @@ def test_convert_to_raw_that_fails_midway_leaves_no_valid_looking_half_file(tmp_
     assert rc == 1 and "outside the 640x480 sensor" in one_line(err)
     assert out.read_bytes() == b"an older recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, "out.raw"])
+
+
+@pytest.mark.parametrize("cut", [15, 17, 300, 2000])
+def test_aedat4_cut_in_its_header_says_truncated(tmp_path, real_data, cut):
+    """It said 'unreadable AEDAT4 file: failed to fill whole buffer' (the Rust reader's words)."""
+    bad = tmp_path / AEDAT4
+    bad.write_bytes((real_data / AEDAT4).read_bytes()[:cut])
+    rc, _, err = cli("info", bad)
+    assert rc == 1
+    line = one_line(err)
+    size = " of 3104 bytes" if cut >= 18 else ""
+    assert line == f"evstream: error: {bad}: truncated in its header{size}: the file ends at byte {cut}"
