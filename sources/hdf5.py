@@ -15,6 +15,7 @@ ECF filter: without that plugin installed, reading fails with a clear error.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 
 import numpy as np
@@ -58,6 +59,10 @@ class Hdf5Source(FileSource):
         except EventError:
             raise
         except _H5_ERRORS as e:  # h5py reports corruption as any of these
+            cut = re.search(r"truncated file: eof = (\d+), sblock->base_addr = \d+, stored_eof = (\d+)", str(e))
+            if cut:  # the superblock records the file's length: say it as the other readers do
+                raise self.error(f"truncated: the file ends at byte {cut[1]}, its superblock says it is "
+                                 f"{cut[2]} bytes long") from None
             raise self.error(f"unreadable HDF5 file: {type(e).__name__}: {e}") from None
         self.time_unit = time_unit or (unit_attr.replace("µs", "us") if unit_attr else guess_time_unit(t))
         self.t_offset_us = self._t_offset(attrs_from)

@@ -508,3 +508,17 @@ def test_aedat4_cut_in_its_header_says_truncated(tmp_path, real_data, cut):
     line = one_line(err)
     size = " of 3104 bytes" if cut >= 18 else ""
     assert line == f"evstream: error: {bad}: truncated in its header{size}: the file ends at byte {cut}"
+
+
+@pytest.mark.parametrize("fraction", [0.0003, 0.5, 0.999999])
+def test_hdf5_cut_short_says_truncated_and_where(tmp_path, real_data, capsys, fraction):
+    """It said 'unreadable HDF5 file: OSError: Unable to synchronously open file (truncated file: eof =
+    301, sblock->base_addr = 0, stored_eof = 1149045)'."""
+    data = (real_data / H5).read_bytes()
+    cut = int(len(data) * fraction)
+    bad = tmp_path / H5
+    bad.write_bytes(data[:cut])
+    rc, _, err = run(capsys, "info", bad)
+    assert rc == 1
+    assert one_line(err) == (f"evstream: error: {bad}: truncated: the file ends at byte {cut}, its superblock "
+                             f"says it is {len(data)} bytes long")
