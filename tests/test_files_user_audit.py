@@ -522,3 +522,23 @@ def test_hdf5_cut_short_says_truncated_and_where(tmp_path, real_data, capsys, fr
     assert rc == 1
     assert one_line(err) == (f"evstream: error: {bad}: truncated: the file ends at byte {cut}, its superblock "
                              f"says it is {len(data)} bytes long")
+
+
+# -- not a recording at all ------------------------------------------------------------------------------
+@pytest.mark.parametrize("command, after", [("info", []), ("frames", []), ("replay", ["--save", "x.rrd"]),
+                                            ("convert", ["x.npz"])])
+@pytest.mark.parametrize("what", ["directory", "empty", "wrong extension"])
+def test_a_directory_an_empty_file_or_a_renamed_binary_is_one_line(tmp_path, real_data, capsys, command, after,
+                                                                   what):
+    if what == "directory":
+        path, says = tmp_path / "rec.raw", "is a directory, not a recording"
+        path.mkdir()
+    elif what == "empty":
+        path, says = tmp_path / "rec.aedat4", "empty file"
+        path.write_bytes(b"")
+    else:  # an N-MNIST binary renamed: it has no magic, so only its extension says what it is
+        path, says = tmp_path / "rec.txt", "unrecognised format"
+        path.write_bytes((real_data / "nmnist_sample.bin").read_bytes())
+    rc, _, err = run(capsys, command, path, *(tmp_path / a if "." in a else a for a in after))
+    assert rc == 1
+    assert one_line(err).startswith(f"evstream: error: {path}: {says}")
