@@ -68,6 +68,7 @@ class Aedat4Source(FileSource):
         panic (a Rust traceback on stderr) instead of saying where. Keeps where the packets start and
         the file data table's position (`_packets_at`, `_table_at`) for `_chain_break`."""
         self._packets_at, self._table_at, self._info_at = None, -1, _HEADER_OFFSET
+        self._packet_at: list[int] = []
         with builtins.open(self.path, "rb") as f:
             head = f.read(_HEADER_OFFSET)
             size = int.from_bytes(head[-4:], "little") if len(head) == _HEADER_OFFSET else None
@@ -134,6 +135,7 @@ class Aedat4Source(FileSource):
         complete = 0 <= self._table_at <= size
         end = self._table_at if complete else size
         at, k, previous = self._packets_at, 0, None
+        self._packet_at = []  # byte of each packet header, to say where a packet that fails to decode is
         with builtins.open(self.path, "rb") as f:
             while at + 8 <= end:
                 f.seek(at)
@@ -142,6 +144,7 @@ class Aedat4Source(FileSource):
                        else f"a size of {n} bytes, past the packets' end at byte {end}" if at + 8 + n > end
                        else None)
                 if bad is None:
+                    self._packet_at.append(at)
                     previous, at, k = at, at + 8 + n, k + 1
                     continue
                 if not complete:
@@ -189,7 +192,9 @@ class Aedat4Source(FileSource):
             if n_packets and "fill whole buffer" in str(e):  # cut short, or a packet size that lies
                 self.warn(f"truncated after {n_packets} packets ({self._cut or e}); the events before are kept")
             else:
-                raise self.error(f"AEDAT4 decoding failed after {n_packets} packets: {_reason(e)}") from None
+                at = self._packet_at[n_packets] if n_packets < len(self._packet_at) else None
+                which = f"packet {n_packets}" if at is not None else f"after {n_packets} packets"
+                raise self.error(f"AEDAT4 decoding failed at {which}: {_reason(e)}", offset=at) from None
         finally:
             self.counters = {f"{k}_packets_skipped": v for k, v in skipped.items()}
         if fill:

@@ -542,3 +542,20 @@ def test_a_directory_an_empty_file_or_a_renamed_binary_is_one_line(tmp_path, rea
     rc, _, err = run(capsys, command, path, *(tmp_path / a if "." in a else a for a in after))
     assert rc == 1
     assert one_line(err).startswith(f"evstream: error: {path}: {says}")
+
+
+@pytest.mark.parametrize("fraction", [0.4, 0.52, 0.85])
+def test_aedat4_packet_that_fails_to_decompress_is_named_by_its_byte(tmp_path, real_data, fraction):
+    """It said 'AEDAT4 decoding failed after 54 packets: LZ4 error: ...' with no byte."""
+    name = "dvxplorer_320x240_tonic.aedat4"
+    data = bytearray((real_data / name).read_bytes())
+    packets = aedat4_packets(bytes(data))
+    k = int(len(packets) * fraction)
+    flip = packets[k] + 8 + 40  # inside the packet's compressed body (its LZ4 frame)
+    data[flip] ^= 0xFF
+    bad = tmp_path / name
+    bad.write_bytes(bytes(data))
+    rc, out, err = cli("info", bad)
+    assert rc == 1
+    assert one_line(err).startswith(f"evstream: error: {bad} at byte {packets[k]}: AEDAT4 decoding failed at "
+                                    f"packet {k}: ")
