@@ -282,8 +282,10 @@ class FileSource:
 def _merge(blocks: list[Block]) -> Block:
     if len(blocks) == 1:
         return blocks[0]
+    rb = blocks[0].record_bytes  # records back to back stay records: errors keep their exact byte
+    contiguous = rb and all(b.record_bytes == rb and a.byte_end == b.byte_start for a, b in zip(blocks, blocks[1:]))
     return Block(*(np.concatenate([getattr(b, k) for b in blocks]) for k in "txyp"),
-                 byte_start=blocks[0].byte_start, byte_end=blocks[-1].byte_end)
+                 byte_start=blocks[0].byte_start, byte_end=blocks[-1].byte_end, record_bytes=rb if contiguous else 0)
 
 
 def _slice(b: Block, i: int, j: int) -> Block:

@@ -18,7 +18,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
 
 NAME = "NumPy .npy / .npz (structured or struct of arrays)"
 FORMAT = "npy"
@@ -42,12 +42,17 @@ class NumpySource(FileSource):
     def __init__(self, path, columns: str | None = None, time_unit: str | None = None, **options):
         super().__init__(path, **options)
         self._npz = None
+        self._rows = None  # .npy with one event per row: (byte of row 0, bytes per row), for error offsets
         try:
             with builtins.open(self.path, "rb") as f:
                 magic = f.read(6)
             if magic == b"\x93NUMPY":
                 self.format = "npy"
-                self._cols = self._from_array(self._load_npy(), columns)
+                array = self._load_npy()
+                self._cols = self._from_array(array, columns)
+                if isinstance(array, np.memmap) and array.flags.c_contiguous and (
+                        array.dtype.names or array.shape[1:] == (4,)):  # one event per row, in file order
+                    self._rows = (int(array.offset), array.strides[0])
             else:
                 self.format = "npz"
                 self._npz = np.load(self.path, allow_pickle=False)
@@ -121,7 +126,18 @@ class NumpySource(FileSource):
         raise self.error(f"no t/x/y/p arrays among {z.files}")
 
     def _blocks(self) -> Iterator[Block]:
-        return self._column_blocks(self._cols, self.n_events, self.time_unit)
+        if self._rows is None:
+            return self._column_blocks(self._cols, self.n_events, self.time_unit)
+        return self._row_blocks(*self._rows)
+
+    def _row_blocks(self, start: int, row_bytes: int) -> Iterator[Block]:
+        """As `_column_blocks`, with each block's bytes, so an error names its event's byte."""
+        n, step = self.n_events, max(1, self.block_bytes // 16)
+        for a in range(0, n, step):
+            b = min(a + step, n)
+            self.fraction_read = b / n
+            yield to_events(self, *(self._cols[k][a:b] for k in "txyp"), self.time_unit,
+                            start + a * row_bytes, start + b * row_bytes, row_bytes)
 
 
 def open(path, **options) -> NumpySource:  # noqa: A001 - the format-module interface

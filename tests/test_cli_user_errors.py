@@ -298,7 +298,8 @@ def test_one_corrupt_coordinate_in_a_file_without_a_size_is_an_error_not_a_giant
                        capture_output=True, text=True, timeout=120, preexec_fn=_limit_memory)
     assert r.returncode == 1
     line = one_line_error(r.stderr)
-    assert f"{bad}: event 30000: (60000, 60000) outside the 2048x2048 sensor" in line and "MemoryError" not in line
+    assert f"{bad} at byte {bad.stat().st_size - (len(a) - 30000) * a.dtype.itemsize}: event 30000: (60000, 60000) " \
+        "outside the 2048x2048 sensor" in line and "MemoryError" not in line
     # a real recording without a size still gets its own sensor
     rc = subprocess.run([sys.executable, "-m", "evstream.cli", "info", real_data / "dvxplorer_320x240_tonic.npy"],
                         capture_output=True, text=True, timeout=120)

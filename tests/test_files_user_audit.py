@@ -559,3 +559,22 @@ def test_aedat4_packet_that_fails_to_decompress_is_named_by_its_byte(tmp_path, r
     assert rc == 1
     assert one_line(err).startswith(f"evstream: error: {bad} at byte {packets[k]}: AEDAT4 decoding failed at "
                                     f"packet {k}: ")
+
+
+@pytest.mark.parametrize("k", [8, 49_998, 49_999, 65_535, 86_201, 111_952])  # around chunk and block edges
+def test_npy_value_error_names_its_events_byte(tmp_path, real_data, capsys, k):
+    """A structured .npy holds one event per 13-byte row after its header: an event's byte is known.
+    It said 'event 86202: ...' with no byte, or '[in bytes 650192..1300192]' for a chunk that
+    straddled two read blocks."""
+    name = "dvxplorer_320x240_tonic.npy"
+    data = bytearray((real_data / name).read_bytes())
+    full = np.load(real_data / name)
+    start = len(data) - full.nbytes
+    data[start + k * full.dtype.itemsize + 6] ^= 0x80  # t is the first field (<i8): +2^55 µs on event k
+    bad = tmp_path / name
+    bad.write_bytes(bytes(data))
+    rc, _, err = run(capsys, "info", bad)
+    assert rc == 1
+    line = one_line(err)
+    assert line.startswith(f"evstream: error: {bad} at byte {start + (k + 1) * 13}: event {k + 1}: timestamp ")
+    assert "in bytes" not in line
