@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_checks import one_line_error
 
 from evstream.cli import main
 
@@ -26,13 +27,6 @@ def run(argv, capsys):
     rc = main([str(a) for a in argv])
     out, err = capsys.readouterr()
     return rc, out, err
-
-
-def one_line_error(err: str) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1, err
-    assert "internal error" not in lines[0] and "Traceback" not in err, lines[0]
-    return lines[0]
 
 
 @pytest.mark.parametrize("member", ["t.npy", "x.npy", "y.npy", "p.npy", "label.npy"])

@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 import pytest
+from cli_checks import one_line_error
 
 AEDAT4 = "davis346_frames_imu_evlib.aedat4"
 
@@ -29,13 +30,6 @@ def run(capsys, *argv):
     rc = main([str(a) for a in argv])
     out, err = capsys.readouterr()
     return rc, out, err
-
-
-def one_line(err: str) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1, err
-    assert "internal error" not in lines[0] and "Traceback" not in err and "panicked" not in err, err
-    return lines[0]
 
 
 def aedat4_packets(data: bytes) -> list[int]:
@@ -62,7 +56,7 @@ def test_aedat4_packet_size_flipped_is_an_error_not_a_truncated_file(tmp_path, r
     bad.write_bytes(bytes(data))
     rc, out, err = cli("info", bad)
     assert rc == 1, (out, err)
-    line = one_line(err)
+    line = one_line_error(err)
     assert line.startswith(f"evstream: error: {bad} at byte ") and "corrupt AEDAT4 packet header" in line
     named = int(line.split(" at byte ")[1].split(":")[0])
     # the packet itself, or the header the wrong size leads to (a valid-looking one may come first)
@@ -82,7 +76,7 @@ def test_aedat4_header_offset_flipped_is_a_one_line_error_not_a_rust_panic(tmp_p
         assert "6,676" in out or "truncated" in err
         return
     assert rc == 1
-    line = one_line(err)
+    line = one_line_error(err)
     assert str(bad) in line and "AEDAT4" in line
 
 
@@ -94,7 +88,7 @@ def test_aedat4_cut_in_a_packet_warns_naming_the_packet_and_keeps_the_events_bef
     bad.write_bytes(data[:cut])
     rc, out, err = cli("info", bad)
     assert rc == 0
-    line = one_line(err)
+    line = one_line_error(err)
     assert line.startswith("evstream: warning: ") and "truncated after 20 packets" in line
     assert f"packet 20 at byte {packets[20]} claims" in line and f"ends at byte {cut}" in line
 
@@ -117,7 +111,7 @@ def test_hdf5_flipped_byte_in_compressed_data_names_the_chunk_not_a_missing_plug
     bad.write_bytes(bytes(data))
     rc, _, err = cli("info", bad)
     assert rc == 1
-    line = one_line(err)
+    line = one_line_error(err)
     assert "ECF" not in line and "hdf5plugin" not in line
     assert line.startswith(f"evstream: error: {bad} at byte ") and "corrupt compressed data in /events/" in line
     named = int(line.split(" at byte ")[1].split(":")[0])
@@ -143,7 +137,7 @@ def test_hdf5_compressed_with_a_filter_this_library_lacks_says_which(tmp_path):
             ds.id.write_direct_chunk((0,), np.arange(10, dtype=dtype).tobytes())
     rc, _, err = cli("info", path)
     assert rc == 1
-    line = one_line(err)
+    line = one_line_error(err)
     assert str(path) in line and "filter 36559" in line and "ECF filter plugin" in line
 
 
@@ -159,7 +153,7 @@ def test_nmnist_timestamp_flipped_names_the_events_byte_not_a_250000_byte_range(
     bad.write_bytes(bytes(data))
     rc, _, err = cli("info", bad)
     assert rc == 1
-    line = one_line(err)
+    line = one_line_error(err)
     assert line.startswith(f"evstream: error: {bad} at byte {5 * (k + 1)}: event {k + 1}: timestamp ")
     assert "in bytes" not in line
 
@@ -453,7 +447,7 @@ def test_npy_cut_short_warns_naming_the_byte_and_keeps_the_whole_rows(tmp_path, 
     rows = (cut - start) // full.dtype.itemsize
     rc, out, err = run(capsys, "convert", bad, tmp_path / "out.h5")
     assert rc == 0, err
-    line = one_line(err)
+    line = one_line_error(err)
     assert line == (f"evstream: warning: {bad}: truncated: the header promises {len(full)} rows ({len(data)} "
                     f"bytes) but the file ends at byte {cut}; the {rows} whole rows before byte "
                     f"{start + rows * full.dtype.itemsize} are kept")
@@ -469,7 +463,7 @@ def test_npy_table_of_four_columns_cut_short_keeps_its_whole_rows(tmp_path, caps
     data = path.read_bytes()
     path.write_bytes(data[: len(data) - 5])  # the last row loses 5 of its 32 bytes
     rc, out, err = run(capsys, "info", path, "--json")
-    assert rc == 0 and "truncated" in one_line(err) and "999 whole rows" in err
+    assert rc == 0 and "truncated" in one_line_error(err) and "999 whole rows" in err
     assert json_loads(out)["events"] == 999
 
 
@@ -493,7 +487,7 @@ def test_convert_to_raw_that_fails_midway_leaves_no_valid_looking_half_file(tmp_
     out = tmp_path / "out.raw"
     out.write_bytes(b"an older recording")
     rc, _, err = run(capsys, "convert", bad, out, "--evt", evt)
-    assert rc == 1 and "outside the 640x480 sensor" in one_line(err)
+    assert rc == 1 and "outside the 640x480 sensor" in one_line_error(err)
     assert out.read_bytes() == b"an older recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, "out.raw"])
 
@@ -505,7 +499,7 @@ def test_aedat4_cut_in_its_header_says_truncated(tmp_path, real_data, cut):
     bad.write_bytes((real_data / AEDAT4).read_bytes()[:cut])
     rc, _, err = cli("info", bad)
     assert rc == 1
-    line = one_line(err)
+    line = one_line_error(err)
     size = " of 3104 bytes" if cut >= 18 else ""
     assert line == f"evstream: error: {bad}: truncated in its header{size}: the file ends at byte {cut}"
 
@@ -520,7 +514,7 @@ def test_hdf5_cut_short_says_truncated_and_where(tmp_path, real_data, capsys, fr
     bad.write_bytes(data[:cut])
     rc, _, err = run(capsys, "info", bad)
     assert rc == 1
-    assert one_line(err) == (f"evstream: error: {bad}: truncated: the file ends at byte {cut}, its superblock "
+    assert one_line_error(err) == (f"evstream: error: {bad}: truncated: the file ends at byte {cut}, its superblock "
                              f"says it is {len(data)} bytes long")
 
 
@@ -541,7 +535,7 @@ def test_a_directory_an_empty_file_or_a_renamed_binary_is_one_line(tmp_path, rea
         path.write_bytes((real_data / "nmnist_sample.bin").read_bytes())
     rc, _, err = run(capsys, command, path, *(tmp_path / a if "." in a else a for a in after))
     assert rc == 1
-    assert one_line(err).startswith(f"evstream: error: {path}: {says}")
+    assert one_line_error(err).startswith(f"evstream: error: {path}: {says}")
 
 
 @pytest.mark.parametrize("fraction", [0.4, 0.52, 0.85])
@@ -557,7 +551,7 @@ def test_aedat4_packet_that_fails_to_decompress_is_named_by_its_byte(tmp_path, r
     bad.write_bytes(bytes(data))
     rc, out, err = cli("info", bad)
     assert rc == 1
-    assert one_line(err).startswith(f"evstream: error: {bad} at byte {packets[k]}: AEDAT4 decoding failed at "
+    assert one_line_error(err).startswith(f"evstream: error: {bad} at byte {packets[k]}: AEDAT4 decoding failed at "
                                     f"packet {k}: ")
 
 
@@ -575,6 +569,6 @@ def test_npy_value_error_names_its_events_byte(tmp_path, real_data, capsys, k):
     bad.write_bytes(bytes(data))
     rc, _, err = run(capsys, "info", bad)
     assert rc == 1
-    line = one_line(err)
+    line = one_line_error(err)
     assert line.startswith(f"evstream: error: {bad} at byte {start + (k + 1) * 13}: event {k + 1}: timestamp ")
     assert "in bytes" not in line
