@@ -167,13 +167,18 @@ class FileSource:
         raise NotImplementedError
 
     # -- shared ----------------------------------------------------------------------------------
-    def _column_blocks(self, cols: dict, n_events: int, time_unit: str) -> Iterator[Block]:
-        """Blocks of a recording already held as columns `t`, `x`, `y`, `p` (npy/npz, MATLAB)."""
+    def _column_blocks(self, cols: dict, n_events: int, time_unit: str,
+                       rows: tuple[int, int] | None = None) -> Iterator[Block]:
+        """Blocks of a recording already held as columns `t`, `x`, `y`, `p` (npy/npz, MATLAB). `rows`
+        = (byte of event 0, bytes per event) when the file holds one event per fixed-size row: each
+        block then carries its bytes, so an error names its event's byte."""
         step = max(1, self.block_bytes // 16)
         for a in range(0, n_events, step):
             b = min(a + step, n_events)
             self.fraction_read = b / n_events
-            yield to_events(self, cols["t"][a:b], cols["x"][a:b], cols["y"][a:b], cols["p"][a:b], time_unit)
+            where = (rows[0] + a * rows[1], rows[0] + b * rows[1], rows[1]) if rows else ()
+            yield to_events(self, cols["t"][a:b], cols["x"][a:b], cols["y"][a:b], cols["p"][a:b], time_unit,
+                            *where)
 
     def set_geometry(self, g: Geometry | None, source: str) -> None:
         """Use `g` (from the header, or assumed) unless the user gave one; a claimed size beyond any event

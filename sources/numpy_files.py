@@ -18,7 +18,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit
 
 NAME = "NumPy .npy / .npz (structured or struct of arrays)"
 FORMAT = "npy"
@@ -126,18 +126,7 @@ class NumpySource(FileSource):
         raise self.error(f"no t/x/y/p arrays among {z.files}")
 
     def _blocks(self) -> Iterator[Block]:
-        if self._rows is None:
-            return self._column_blocks(self._cols, self.n_events, self.time_unit)
-        return self._row_blocks(*self._rows)
-
-    def _row_blocks(self, start: int, row_bytes: int) -> Iterator[Block]:
-        """As `_column_blocks`, with each block's bytes, so an error names its event's byte."""
-        n, step = self.n_events, max(1, self.block_bytes // 16)
-        for a in range(0, n, step):
-            b = min(a + step, n)
-            self.fraction_read = b / n
-            yield to_events(self, *(self._cols[k][a:b] for k in "txyp"), self.time_unit,
-                            start + a * row_bytes, start + b * row_bytes, row_bytes)
+        return self._column_blocks(self._cols, self.n_events, self.time_unit, self._rows)
 
 
 def open(path, **options) -> NumpySource:  # noqa: A001 - the format-module interface
