@@ -19,8 +19,8 @@ from evstream.events import Geometry, concat
 from evstream.noise import NoiseSpec, inject
 from evstream.pipeline import Pipeline, build
 from evstream.synth import scene
-from sinks.mcap_sink import McapSink
-from sources import native, open_source
+from evstream.sinks.mcap_sink import McapSink
+from evstream.sources import native, open_source
 
 from .common import events_per_s, peak_alloc_bytes, report
 

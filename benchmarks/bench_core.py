@@ -5,7 +5,7 @@ from pathlib import Path
 
 from evstream.events import Geometry, concat
 from evstream.testing import random_stream
-from sources import native
+from evstream.sources import native
 
 from .common import events_per_s, report
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from evstream.events import EventChunk, concat
 from evstream.framing import AdaptiveOverlap, FixedCount, FixedWindow, OverlapAccumulation
 from evstream.testing import split
-from sources import native
+from evstream.sources import native
 
 from .common import events_per_s, peak_alloc_bytes, report
 

@@ -63,7 +63,7 @@ def quality() -> None:
     from pathlib import Path
 
     from evstream.events import NoiseClass, concat
-    from sources import open_source
+    from evstream.sources import open_source
 
     root = Path(__file__).resolve().parents[1] / "recordings"
     print("-- quality (warm state: after Δt + n/fs)")

@@ -21,7 +21,7 @@ import numpy as np
 from evstream.codecs import evt2, evt3
 from evstream.events import Geometry
 from evstream.testing import random_stream
-from sources import aedat2, hdf5, native, open_source, prophesee_raw
+from evstream.sources import aedat2, hdf5, native, open_source, prophesee_raw
 
 from .common import events_per_s, report
 
@@ -158,7 +158,7 @@ def real_files() -> None:
 # VmHWM, not ru_maxrss: Linux carries the parent's high-water mark across fork+exec into ru_maxrss
 _CHILD = """
 import json, sys, time
-from sources import open_source
+from evstream.sources import open_source
 t0 = time.perf_counter()
 n = sum(len(c) for c in open_source(sys.argv[1]))
 hwm = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM:"))

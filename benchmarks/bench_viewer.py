@@ -19,9 +19,9 @@ from evstream.events import Geometry
 from evstream.noise import NoiseSpec, inject
 from evstream.pipeline import Pipeline, build, paced
 from evstream.synth import scene
-from sinks.rerun_sink import RerunSink
-from sinks.rerun_viewer import free_port, open_output, rerun_binary, wait_listening
-from sources import native
+from evstream.sinks.rerun_sink import RerunSink
+from evstream.sinks.rerun_viewer import free_port, open_output, rerun_binary, wait_listening
+from evstream.sources import native
 
 from .common import peak_rss_mb, report
 

@@ -18,7 +18,7 @@ from evstream.framing import AdaptiveOverlap, FixedCount, FixedWindow, OverlapAc
 from evstream.framing.render import mosaic, paper, write_png
 from evstream.framing.stats import frame_stats
 from evstream.testing import split
-from sources import open_source
+from evstream.sources import open_source
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"

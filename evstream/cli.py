@@ -30,7 +30,7 @@ class UsageError(Exception):
 
 # -- shared pieces ----------------------------------------------------------------------------------
 def _open(path: str, args=None):
-    from sources import open_source
+    from evstream.sources import open_source
 
     options = {}
     if getattr(args, "geometry", None):
@@ -43,7 +43,7 @@ def _open(path: str, args=None):
 def _geometry_flag(text: str):
     """`--geometry WxH` as a Geometry; a bad one is a usage error naming what was typed
     (`--geometry 0x0: Geometry.width must be ...`, not `--Geometry.width ...`)."""
-    from sources._base import as_geometry
+    from evstream.sources._base import as_geometry
 
     try:
         return as_geometry(text)
@@ -212,8 +212,8 @@ class LagMeter:
 def cmd_replay(args) -> int:
     import signal
 
-    from sinks.rerun_sink import RerunSink
-    from sinks.rerun_viewer import has_display, open_output
+    from evstream.sinks.rerun_sink import RerunSink
+    from evstream.sinks.rerun_viewer import has_display, open_output
 
     outputs = [o for o in ("save", "spawn", "serve", "viewer") if getattr(args, o)]
     if len(outputs) > 1:
@@ -345,7 +345,7 @@ def cmd_archive(args) -> int:
     """Clean a recording into an MCAP archive (EventPackets, noise per class, frames, provenance)."""
     import signal
 
-    from sinks.mcap_sink import McapSink
+    from evstream.sinks.mcap_sink import McapSink
 
     if not args.out.endswith(".mcap"):
         raise UsageError(f"{args.out}: the archive's name must end in .mcap")
@@ -465,7 +465,7 @@ def _summary_line(s: RunStats) -> str:
 
 
 def cmd_convert(args) -> int:
-    from sources import hdf5, native, prophesee_raw
+    from evstream.sources import hdf5, native, prophesee_raw
 
     out = Path(args.out)
     kind = out.suffix.lower()
@@ -505,7 +505,7 @@ def cmd_convert(args) -> int:
 
 
 def cmd_synth(args) -> int:
-    from sources import native
+    from evstream.sources import native
 
     geometry = Geometry(args.width, args.height)
     events = synth.scene(args.scene, geometry, duration_us=int(args.duration_ms * 1000), seed=args.seed)

@@ -28,7 +28,7 @@ CLEAN_KEY = "evstream/{camera}/events/clean"
 
 # -- shared flags ---------------------------------------------------------------------------------
 def _add_zenoh_flags(p, *, router: bool = False) -> None:
-    from sources.zenoh_session import DEFAULT_ENDPOINT
+    from evstream.sources.zenoh_session import DEFAULT_ENDPOINT
 
     p.add_argument("--listen", metavar="ENDPOINT", action="append", default=[],
                    help=f"Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)"
@@ -43,14 +43,14 @@ def _add_zenoh_flags(p, *, router: bool = False) -> None:
 
 
 def _session(args, mode=None):
-    from sources.zenoh_session import open_session
+    from evstream.sources.zenoh_session import open_session
 
     return open_session(mode=mode or getattr(args, "mode", None), listen=args.listen, connect=args.connect,
                         multicast=args.multicast)
 
 
 def _check_endpoints(args) -> None:
-    from sources.zenoh_session import check_endpoint
+    from evstream.sources.zenoh_session import check_endpoint
 
     from .cli import UsageError
 
@@ -85,9 +85,9 @@ def packetize(chunks, packet_us: int):
 def cmd_publish(args) -> int:
     import signal
 
-    from sinks.zenoh_pub import PacketPublisher, linger
-    from sources.zenoh_session import drain
-    from sources.zenoh_sub import camera_of
+    from evstream.sinks.zenoh_pub import PacketPublisher, linger
+    from evstream.sources.zenoh_session import drain
+    from evstream.sources.zenoh_sub import camera_of
 
     from .cli import UsageError, _check_numbers, _open, _StopOnSignal, event_rate
 
@@ -181,7 +181,7 @@ class _Camera:
         self.sinks = []
         self.pub = None
         if args.archive:
-            from sinks.mcap_sink import McapSink
+            from evstream.sinks.mcap_sink import McapSink
 
             path = _archive_path(args.archive, self.name, node.wildcard, self.segment)
             Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -192,14 +192,14 @@ class _Camera:
                                        flush_s=args.flush_s))
             self.archives.append(path)
         if node.viewer is not None:
-            from sinks.rerun_sink import RerunSink
+            from evstream.sinks.rerun_sink import RerunSink
 
             self.sinks.append(RerunSink(node.viewer_rec(self.name), geometry=geometry,
                                         framer=getattr(self.pipeline.framer, "kind", None),
                                         point_budget_hz=args.point_budget or None, slab_ms=args.slab_ms,
                                         play_state=None if node.viewer.mode == "save" else "following"))
         if args.republish:
-            from sinks.zenoh_pub import ZenohSink, frames_key_for
+            from evstream.sinks.zenoh_pub import ZenohSink, frames_key_for
 
             key = args.republish.replace("{camera}", self.name)
             self.pub = ZenohSink(node.session, key, congestion="block", frame_id=self.name,
@@ -272,7 +272,7 @@ class Subscriber:
 def cmd_subscribe(args) -> int:
     import signal
 
-    from sources.zenoh_sub import End, ZenohSubscription
+    from evstream.sources.zenoh_sub import End, ZenohSubscription
 
     from .cli import UsageError, _check_numbers, _geometry_flag, _StopOnSignal
 
@@ -304,7 +304,7 @@ def cmd_subscribe(args) -> int:
         geometry = _geometry_flag(args.geometry)
     node = Subscriber(args)
     if viewer_flags:
-        from sinks.rerun_viewer import open_output
+        from evstream.sinks.rerun_viewer import open_output
 
         node.viewer = open_output(save=args.save, spawn=args.spawn, serve=args.serve, connect=args.viewer,
                                   bind=args.bind, memory_limit=args.memory_limit)
@@ -312,7 +312,7 @@ def cmd_subscribe(args) -> int:
             print(f"web viewer: {node.viewer.web_url}", flush=True)
     session = _session(args)
     node.session = session
-    from sources.zenoh_session import watch_transports
+    from evstream.sources.zenoh_session import watch_transports
 
     node.transports = watch_transports(session, lambda m: print(f"evstream: {m}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
@@ -362,8 +362,8 @@ def cmd_subscribe(args) -> int:
                 stats = {name: s.as_dict() for name, s in sub.cameras.items()}
                 sub.close()  # upstream publishers see this reader leave
                 if publishers:  # keep the session until the cleaned stream's readers have it all
-                    from sinks.zenoh_pub import linger
-                    from sources.zenoh_session import drain
+                    from evstream.sinks.zenoh_pub import linger
+                    from evstream.sources.zenoh_session import drain
 
                     drain(session, args.drain_s)
                     linger(publishers, args.drain_s)
@@ -416,7 +416,7 @@ def cmd_subscribe(args) -> int:
 def _warm_up(args) -> None:
     """Load the numba kernels (decoder, stages, encoder) before packets arrive, so the first packets do
     not wait behind compilation and the FIFO does not start with a backlog."""
-    from sources.zenoh_sub import ZenohSubscription  # noqa: F401 - imports the decoders
+    from evstream.sources.zenoh_sub import ZenohSubscription  # noqa: F401 - imports the decoders
 
     from .cli import _attach_framer, _pipeline
     from .codecs.event_packet import decode_packet, encode_packet
@@ -436,9 +436,9 @@ def _warm_up(args) -> None:
     pipeline.finish(g)
     # the sinks a camera opens on its first packet (their imports alone take ~50 ms each)
     if getattr(args, "republish", None):
-        import sinks.zenoh_pub  # noqa: F401
+        import evstream.sinks.zenoh_pub  # noqa: F401
     if getattr(args, "archive", None):
-        import sinks.mcap_sink  # noqa: F401
+        import evstream.sinks.mcap_sink  # noqa: F401
 
 
 def _wait_readers(session, keyexpr: str, timeout_s: float) -> bool:
@@ -505,7 +505,7 @@ def _print_summary(s: dict) -> None:
 def cmd_router(args) -> int:
     import signal
 
-    from sources.zenoh_session import DEFAULT_ENDPOINT
+    from evstream.sources.zenoh_session import DEFAULT_ENDPOINT
 
     from .cli import _StopOnSignal
 

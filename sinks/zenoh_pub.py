@@ -24,7 +24,7 @@ from evstream.codecs.event_packet import encode_packet
 from evstream.codecs.packets import to_packet
 from evstream.events import EventChunk, Frame, NoiseClass
 from evstream.pipeline import Batch, RunStats
-from sinks.mcap_sink import render_mono8
+from evstream.sinks.mcap_sink import render_mono8
 
 __all__ = ["CONGESTION", "PacketPublisher", "ZenohSink", "frames_key_for", "linger"]
 

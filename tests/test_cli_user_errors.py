@@ -247,7 +247,7 @@ def test_archive_of_a_recording_with_a_long_pause_before_a_small_packet(tmp_path
     across ~2,000 wraps. That wrote past the encoder's buffer (sized from the packet's first event):
     segfault or glibc abort in `evstream archive`. In a child process, so a crash cannot take pytest."""
     from evstream.events import concat
-    from sources import native, open_source
+    from evstream.sources import native, open_source
 
     src = open_source(SHIPPED)
     ev = concat(list(src), src.geometry)
@@ -309,7 +309,7 @@ def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(
 
     from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
     from evstream.codecs.packets import to_packet
-    from sources.zenoh_session import open_session
+    from evstream.sources.zenoh_session import open_session
 
     t = np.arange(10, dtype=np.int64) + 1000
     x = np.arange(10, dtype=np.uint16)
@@ -380,7 +380,7 @@ def test_a_header_claiming_a_giant_sensor_is_refused_before_memory_runs_out(tmp_
 def test_stats_bins_over_a_pause_of_months_take_memory_for_the_events_only():
     """A camera paused 2^50 µs (36 years: a corrupt clock) inside one chunk: the statistics used a dense
     row per 10 ms bin of the pause (TiB), MemoryError in replay; a 2^42 µs pause took 9.8 GiB."""
-    from sinks.rerun_sink import StatsBins
+    from evstream.sinks.rerun_sink import StatsBins
 
     t = np.array([0, 5, 25_000, 1 << 50, (1 << 50) + 7], np.int64)
     cls = np.array([0, 1, 2, 0, 1], np.uint8)
@@ -453,7 +453,7 @@ def test_the_summary_rate_adds_up_for_a_small_recording(tmp_path, capsys, real_d
 ])
 def test_csv_and_named_columns_read_the_same_events_as_the_text_file(tmp_path, real_data, header, sep, order):
     from evstream.events import concat
-    from sources import open_source
+    from evstream.sources import open_source
 
     src = real_data / "dvs128_lifetime_building_events.txt"
     rows = [ln.split() for ln in src.read_text().splitlines()]

@@ -7,7 +7,7 @@ from evstream import evaluation as ev
 from evstream.cli import main
 from evstream.events import EventChunk, Geometry, NoiseClass
 from evstream.synth import scene
-from sources import native
+from evstream.sources import native
 
 G = Geometry(64, 48)
 

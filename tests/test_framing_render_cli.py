@@ -14,7 +14,7 @@ from evstream.framing.render import COLOUR_MAPS, mosaic, paper, png_bytes, rende
 from evstream.framing.stats import FrameStats, frame_stats
 from evstream.pipeline import Pipeline
 from evstream.testing import frames_of, random_stream
-from sources import native
+from evstream.sources import native
 
 G = Geometry(24, 18)
 

@@ -21,7 +21,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from evstream.cli import main
 from evstream.events import Geometry, concat
 from evstream.testing import random_stream
-from sources import mcap_log, native, open_source
+from evstream.sources import mcap_log, native, open_source
 
 EVSTREAM = str(Path(sys.executable).parent / "evstream")
 

@@ -9,7 +9,7 @@ import pytest
 from evstream.cli import main
 from evstream.events import EventError, Geometry
 from evstream.testing import random_stream
-from sources import native, open_source
+from evstream.sources import native, open_source
 
 G = Geometry(24, 18)
 

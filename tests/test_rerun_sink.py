@@ -16,8 +16,8 @@ from evstream.cli import main
 from evstream.events import N_CLASSES, EventChunk, Frame, Geometry, NoiseClass, concat
 from evstream.pipeline import Batch, Pipeline, RunStats
 from evstream.testing import random_stream
-from sinks.rerun_sink import CLASS_ENTITIES, TIMELINE, PointBudget, RerunSink, StatsBins, slab_depth
-from sinks.rerun_viewer import open_output
+from evstream.sinks.rerun_sink import CLASS_ENTITIES, TIMELINE, PointBudget, RerunSink, StatsBins, slab_depth
+from evstream.sinks.rerun_viewer import open_output
 
 G = Geometry(64, 48)
 
@@ -228,7 +228,7 @@ def test_frames_and_frame_statistics(tmp_path):
 
 
 def test_cli_replay_save_json_counts_dropped_points(tmp_path, capsys):
-    from sources import native
+    from evstream.sources import native
 
     ev = classified(40_000, seed=6, duration_us=200_000)
     src = tmp_path / "r.npz"
@@ -247,7 +247,7 @@ def test_cli_replay_save_json_counts_dropped_points(tmp_path, capsys):
 def test_cli_default_without_display_writes_rrd_and_says_how_to_open(tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    from sources import native
+    from evstream.sources import native
 
     src = tmp_path / "quiet.npz"
     native.save(src, concat([classified(2_000, seed=7)]).replace(cls=None))
@@ -266,8 +266,8 @@ def test_cli_two_outputs_is_a_usage_error(tmp_path, capsys):
 def test_cli_viewer_url_nothing_listens_at_is_a_clear_error(tmp_path, capsys):
     import time
 
-    from sinks.rerun_viewer import free_port
-    from sources import native
+    from evstream.sinks.rerun_viewer import free_port
+    from evstream.sources import native
 
     src = tmp_path / "r.npz"
     native.save(src, random_stream(1, 100))

@@ -21,9 +21,9 @@ import pytest
 import rerun as rr
 
 from evstream.pipeline import Pipeline, build
-from sinks.rerun_sink import CLASS_COLOURS, RerunSink
-from sinks.rerun_viewer import free_port, is_listening, open_output, rerun_binary
-from sources import open_source
+from evstream.sinks.rerun_sink import CLASS_COLOURS, RerunSink
+from evstream.sinks.rerun_viewer import free_port, is_listening, open_output, rerun_binary
+from evstream.sources import open_source
 
 ROOT = Path(__file__).resolve().parents[1]
 TURNTABLE = ROOT / "recordings" / "turntable.npz"

@@ -15,7 +15,7 @@ from test_sources_formats import write_dat, write_mat, write_nmnist
 
 from evstream.events import EventError, Geometry
 from evstream.testing import random_stream
-from sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
+from evstream.sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
 
 G = Geometry(128, 128)
 

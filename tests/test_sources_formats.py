@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from evstream.events import EventChunk, EventError, Geometry, concat
 from evstream.testing import random_stream
-from sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
-from sources import numpy_files as npf
+from evstream.sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
+from evstream.sources import numpy_files as npf
 
 G = Geometry(128, 128)
 
@@ -280,7 +280,7 @@ number_text = st.one_of(
 @given(st.lists(st.tuples(st.lists(number_text, min_size=4, max_size=4), st.sampled_from([" ", "\t", "  "]),
                           st.sampled_from(["\n", "\r\n", " \n"]), st.booleans()), max_size=30))
 def test_text_kernel_matches_python_float(lines):
-    from sources.text import _parse_kernel
+    from evstream.sources.text import _parse_kernel
 
     text_ = ""
     want = []
@@ -300,7 +300,7 @@ def test_text_kernel_matches_python_float(lines):
                                     "-0.00000000000000000000", "1.23456789012345678901e-5",
                                     "12345678901234567890123"])
 def test_text_kernel_keeps_18_significant_digits_after_leading_zeros(number):
-    from sources.text import _parse_kernel
+    from evstream.sources.text import _parse_kernel
 
     out = np.empty((2, 4))
     rows, bad = _parse_kernel(np.frombuffer(f"{number} 1 2 0\n".encode(), np.uint8), out)
@@ -310,7 +310,7 @@ def test_text_kernel_keeps_18_significant_digits_after_leading_zeros(number):
 
 @given(st.text(alphabet="0123456789.-+eE \t\nx#", max_size=60))
 def test_text_kernel_flags_malformed_lines_like_python(s):
-    from sources.text import _parse_kernel
+    from evstream.sources.text import _parse_kernel
 
     data = s.encode()
     out = np.empty((data.count(b"\n") + 1, 4))

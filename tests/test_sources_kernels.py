@@ -5,7 +5,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from evstream.codecs import evt3
-from sources._base import Unwrapper, _first_at_or_after
+from evstream.sources._base import Unwrapper, _first_at_or_after
 
 
 def reference_unwrap(values, bits):

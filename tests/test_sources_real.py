@@ -8,7 +8,7 @@ import pytest
 
 from evstream.cli import main
 from evstream.events import concat
-from sources import open_source
+from evstream.sources import open_source
 
 # file: (format, WxH, events, span µs, ON fraction, first event, last event) — counts, spans and ON
 # fractions from SOURCES.md's table; first/last events are the same across each file's twin

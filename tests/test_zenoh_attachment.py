@@ -19,7 +19,7 @@ from evstream.codecs.attachment import (
     encode_rmw_attachment,
 )
 from evstream.events import EventChunk, Geometry, concat
-from sources.zenoh_sub import camera_of
+from evstream.sources.zenoh_sub import camera_of
 
 i64 = st.integers(-(1 << 63), (1 << 63) - 1)
 

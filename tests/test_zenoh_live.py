@@ -23,8 +23,8 @@ from evstream.codecs import evt3
 from evstream.codecs.attachment import encode_attachment
 from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
 from evstream.codecs.packets import to_packet
-from sources import open_source
-from sources.zenoh_session import drain, open_session
+from evstream.sources import open_source
+from evstream.sources.zenoh_session import drain, open_session
 
 ROOT = Path(__file__).resolve().parents[1]
 TURNTABLE = ROOT / "recordings" / "turntable.npz"
@@ -330,7 +330,7 @@ def test_ros2_rmw_zenoh_event_packets(procs, tmp_path):
 
 
 def test_endpoints_are_explicit_and_loopback_by_default():
-    from sources.zenoh_session import config
+    from evstream.sources.zenoh_session import config
 
     c = config(mode="peer", connect=["tcp/127.0.0.1:7447"])
     assert json.loads(c.get_json("listen/endpoints")) == []
@@ -393,7 +393,7 @@ def test_subscribe_logs_into_a_running_viewer(procs, tmp_path):
     `rerun`, listening on loopback and saving what it receives, read back afterwards."""
     from rerun.chunk import RrdReader
 
-    from sinks.rerun_viewer import rerun_binary, wait_listening
+    from evstream.sinks.rerun_viewer import rerun_binary, wait_listening
 
     rr_port, port = free_port(), free_port()
     received, log = tmp_path / "received.rrd", tmp_path / "rerun.log"
