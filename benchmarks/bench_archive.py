@@ -12,6 +12,8 @@ import os
 import tempfile
 
 import numpy as np
+from evstream.sinks.mcap_sink import McapSink
+from evstream.sources import native, open_source
 
 from evstream.codecs import evt3
 from evstream.codecs.packets import evt3_sensor_clock
@@ -19,8 +21,6 @@ from evstream.events import Geometry, concat
 from evstream.noise import NoiseSpec, inject
 from evstream.pipeline import Pipeline, build
 from evstream.synth import scene
-from evstream.sinks.mcap_sink import McapSink
-from evstream.sources import native, open_source
 
 from .common import events_per_s, peak_alloc_bytes, report
 

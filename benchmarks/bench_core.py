@@ -3,9 +3,10 @@
 import tempfile
 from pathlib import Path
 
+from evstream.sources import native
+
 from evstream.events import Geometry, concat
 from evstream.testing import random_stream
-from evstream.sources import native
 
 from .common import events_per_s, report
 

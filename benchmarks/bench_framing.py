@@ -12,10 +12,11 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from evstream.sources import native
+
 from evstream.events import EventChunk, concat
 from evstream.framing import AdaptiveOverlap, FixedCount, FixedWindow, OverlapAccumulation
 from evstream.testing import split
-from evstream.sources import native
 
 from .common import events_per_s, peak_alloc_bytes, report
 

@@ -62,8 +62,9 @@ def quality() -> None:
     removed at 50 %)."""
     from pathlib import Path
 
-    from evstream.events import NoiseClass, concat
     from evstream.sources import open_source
+
+    from evstream.events import NoiseClass, concat
 
     root = Path(__file__).resolve().parents[1] / "recordings"
     print("-- quality (warm state: after Δt + n/fs)")

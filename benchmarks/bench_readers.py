@@ -17,11 +17,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from evstream.sources import aedat2, hdf5, native, open_source, prophesee_raw
 
 from evstream.codecs import evt2, evt3
 from evstream.events import Geometry
 from evstream.testing import random_stream
-from evstream.sources import aedat2, hdf5, native, open_source, prophesee_raw
 
 from .common import events_per_s, report
 

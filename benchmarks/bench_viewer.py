@@ -13,15 +13,15 @@ import time
 from pathlib import Path
 
 import numpy as np
+from evstream.sinks.rerun_sink import RerunSink
+from evstream.sinks.rerun_viewer import free_port, open_output, rerun_binary, wait_listening
+from evstream.sources import native
 
 from evstream.cli import LagMeter
 from evstream.events import Geometry
 from evstream.noise import NoiseSpec, inject
 from evstream.pipeline import Pipeline, build, paced
 from evstream.synth import scene
-from evstream.sinks.rerun_sink import RerunSink
-from evstream.sinks.rerun_viewer import free_port, open_output, rerun_binary, wait_listening
-from evstream.sources import native
 
 from .common import peak_rss_mb, report
 

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from evstream.sources import open_source
 
 from evstream.denoise.oracle import TruthStage
 from evstream.events import concat
@@ -18,7 +19,6 @@ from evstream.framing import AdaptiveOverlap, FixedCount, FixedWindow, OverlapAc
 from evstream.framing.render import mosaic, paper, write_png
 from evstream.framing.stats import frame_stats
 from evstream.testing import split
-from evstream.sources import open_source
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"

@@ -18,9 +18,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from evstream.cli import main as evstream  # noqa: E402
 from evstream.sinks.rerun_sink import TIMELINE  # noqa: E402
 from evstream.sinks.rerun_viewer import free_port, open_output  # noqa: E402
+
+from evstream.cli import main as evstream  # noqa: E402
 
 
 def main() -> None:

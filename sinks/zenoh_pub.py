@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 import zenoh
+from evstream.sinks.mcap_sink import render_mono8
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 from evstream.codecs.attachment import encode_attachment
@@ -24,7 +25,6 @@ from evstream.codecs.event_packet import encode_packet
 from evstream.codecs.packets import to_packet
 from evstream.events import EventChunk, Frame, NoiseClass
 from evstream.pipeline import Batch, RunStats
-from evstream.sinks.mcap_sink import render_mono8
 
 __all__ = ["CONGESTION", "PacketPublisher", "ZenohSink", "frames_key_for", "linger"]
 

@@ -246,8 +246,9 @@ def test_archive_of_a_recording_with_a_long_pause_before_a_small_packet(tmp_path
     """A camera left idle for hours, then a few events: the packet after the pause steps its EVT3 clock
     across ~2,000 wraps. That wrote past the encoder's buffer (sized from the packet's first event):
     segfault or glibc abort in `evstream archive`. In a child process, so a crash cannot take pytest."""
-    from evstream.events import concat
     from evstream.sources import native, open_source
+
+    from evstream.events import concat
 
     src = open_source(SHIPPED)
     ev = concat(list(src), src.geometry)
@@ -304,12 +305,12 @@ def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(
     """EventPackets carry width/height (uint32). One claiming 60000x60000 gave the replay, or a live
     subscriber, a 60001x60001 pipeline: MemoryError, or the machine out of memory. A file is refused;
     on the wire the packet is counted as malformed and the stream goes on (docs/live.md)."""
+    from evstream.sources.zenoh_session import open_session
     from mcap.writer import Writer
     from test_zenoh_live import Procs, free_port, matched_publisher
 
     from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
     from evstream.codecs.packets import to_packet
-    from evstream.sources.zenoh_session import open_session
 
     t = np.arange(10, dtype=np.int64) + 1000
     x = np.arange(10, dtype=np.uint16)
@@ -452,8 +453,9 @@ def test_the_summary_rate_adds_up_for_a_small_recording(tmp_path, capsys, real_d
     ("x,y,polarity,timestamp\n", ", ", "xypt"),  # the names give the order
 ])
 def test_csv_and_named_columns_read_the_same_events_as_the_text_file(tmp_path, real_data, header, sep, order):
-    from evstream.events import concat
     from evstream.sources import open_source
+
+    from evstream.events import concat
 
     src = real_data / "dvs128_lifetime_building_events.txt"
     rows = [ln.split() for ln in src.read_text().splitlines()]

@@ -2,12 +2,12 @@ import json
 
 import numpy as np
 import pytest
+from evstream.sources import native
 
 from evstream import evaluation as ev
 from evstream.cli import main
 from evstream.events import EventChunk, Geometry, NoiseClass
 from evstream.synth import scene
-from evstream.sources import native
 
 G = Geometry(64, 48)
 

@@ -167,11 +167,11 @@ def test_replay_rrd_puts_each_noise_class_on_its_own_entity_and_colour(tmp_path,
     from collections import defaultdict
 
     import numpy as np
+    from evstream.sources import open_source
     from rerun.chunk import RrdReader
 
     from evstream.events import NoiseClass, concat
     from evstream.pipeline import Pipeline, build
-    from evstream.sources import open_source
 
     name = "dvxplorer_320x240_tonic.aedat4"  # 190 k events/s: under the default point budget, all drawn
     rrd = tmp_path / "out.rrd"

@@ -6,6 +6,7 @@ import zlib
 
 import numpy as np
 import pytest
+from evstream.sources import native
 
 from evstream.cli import main
 from evstream.events import Frame, Geometry
@@ -14,7 +15,6 @@ from evstream.framing.render import COLOUR_MAPS, mosaic, paper, png_bytes, rende
 from evstream.framing.stats import FrameStats, frame_stats
 from evstream.pipeline import Pipeline
 from evstream.testing import frames_of, random_stream
-from evstream.sources import native
 
 G = Geometry(24, 18)
 

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from evstream.sinks.mcap_sink import McapSink, render_mono8, topics
+from evstream.sources import mcap_log, open_source
 from hypothesis import given
 from hypothesis import strategies as st
 from mcap.reader import make_reader
@@ -22,8 +24,6 @@ from evstream.codecs.event_packet import DATATYPE, MSGDEF
 from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass, concat
 from evstream.pipeline import Batch, Pipeline, RunStats
 from evstream.testing import random_bounds, random_stream, split
-from evstream.sinks.mcap_sink import McapSink, render_mono8, topics
-from evstream.sources import mcap_log, open_source
 
 G = Geometry(64, 48)
 
@@ -210,9 +210,8 @@ def test_rerun_mcap_loader_shows_the_frames(tmp_path, frame_format):
 
 
 def test_ros2_image_bytes_match_mcap_ros2():
-    from mcap_ros2._dynamic import serialize_dynamic
-
     from evstream.sinks.mcap_sink import IMAGE_DATATYPE, IMAGE_MSGDEF, ros2_image
+    from mcap_ros2._dynamic import serialize_dynamic
 
     img = np.arange(12, dtype=np.uint8).reshape(3, 4)
     rgb = np.repeat(img[:, :, None], 3, axis=2)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from evstream.sources import mcap_log, native, open_source
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -21,7 +22,6 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from evstream.cli import main
 from evstream.events import Geometry, concat
 from evstream.testing import random_stream
-from evstream.sources import mcap_log, native, open_source
 
 EVSTREAM = str(Path(sys.executable).parent / "evstream")
 

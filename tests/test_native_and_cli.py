@@ -5,11 +5,11 @@ import zipfile
 
 import numpy as np
 import pytest
+from evstream.sources import native, open_source
 
 from evstream.cli import main
 from evstream.events import EventError, Geometry
 from evstream.testing import random_stream
-from evstream.sources import native, open_source
 
 G = Geometry(24, 18)
 

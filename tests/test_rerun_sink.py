@@ -8,6 +8,8 @@ from collections import defaultdict
 
 import numpy as np
 import pytest
+from evstream.sinks.rerun_sink import CLASS_ENTITIES, TIMELINE, PointBudget, RerunSink, StatsBins, slab_depth
+from evstream.sinks.rerun_viewer import open_output
 from hypothesis import given
 from hypothesis import strategies as st
 from rerun.chunk import RrdReader
@@ -16,8 +18,6 @@ from evstream.cli import main
 from evstream.events import N_CLASSES, EventChunk, Frame, Geometry, NoiseClass, concat
 from evstream.pipeline import Batch, Pipeline, RunStats
 from evstream.testing import random_stream
-from evstream.sinks.rerun_sink import CLASS_ENTITIES, TIMELINE, PointBudget, RerunSink, StatsBins, slab_depth
-from evstream.sinks.rerun_viewer import open_output
 
 G = Geometry(64, 48)
 

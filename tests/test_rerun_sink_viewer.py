@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rerun as rr
-
-from evstream.pipeline import Pipeline, build
 from evstream.sinks.rerun_sink import CLASS_COLOURS, RerunSink
 from evstream.sinks.rerun_viewer import free_port, is_listening, open_output, rerun_binary
 from evstream.sources import open_source
+
+from evstream.pipeline import Pipeline, build
 
 ROOT = Path(__file__).resolve().parents[1]
 TURNTABLE = ROOT / "recordings" / "turntable.npz"

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from evstream.sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_sources_formats import write_dat, write_mat, write_nmnist
 
 from evstream.events import EventError, Geometry
 from evstream.testing import random_stream
-from evstream.sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
 
 G = Geometry(128, 128)
 

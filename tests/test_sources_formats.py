@@ -7,13 +7,13 @@ import zlib
 
 import numpy as np
 import pytest
+from evstream.sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
+from evstream.sources import numpy_files as npf
 from hypothesis import given
 from hypothesis import strategies as st
 
 from evstream.events import EventChunk, EventError, Geometry, concat
 from evstream.testing import random_stream
-from evstream.sources import EventWarning, aedat2, hdf5, open_source, prophesee_raw, text
-from evstream.sources import numpy_files as npf
 
 G = Geometry(128, 128)
 

@@ -1,11 +1,11 @@
 """The readers' small numba kernels and the EVT3 encoder against plain-Python references."""
 
 import numpy as np
+from evstream.sources._base import Unwrapper, _first_at_or_after
 from hypothesis import given
 from hypothesis import strategies as st
 
 from evstream.codecs import evt3
-from evstream.sources._base import Unwrapper, _first_at_or_after
 
 
 def reference_unwrap(values, bits):

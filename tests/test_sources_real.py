@@ -5,10 +5,10 @@ import json
 
 import numpy as np
 import pytest
+from evstream.sources import open_source
 
 from evstream.cli import main
 from evstream.events import concat
-from evstream.sources import open_source
 
 # file: (format, WxH, events, span µs, ON fraction, first event, last event) — counts, spans and ON
 # fractions from SOURCES.md's table; first/last events are the same across each file's twin

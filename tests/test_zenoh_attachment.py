@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import zenoh.ext as zext
+from evstream.sources.zenoh_sub import camera_of
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -19,7 +20,6 @@ from evstream.codecs.attachment import (
     encode_rmw_attachment,
 )
 from evstream.events import EventChunk, Geometry, concat
-from evstream.sources.zenoh_sub import camera_of
 
 i64 = st.integers(-(1 << 63), (1 << 63) - 1)
 

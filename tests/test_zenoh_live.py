@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 import zenoh
 import zenoh.ext as zext
+from evstream.sources import open_source
+from evstream.sources.zenoh_session import drain, open_session
 from mcap_ros2._dynamic import serialize_dynamic
 
 from evstream.codecs import evt3
 from evstream.codecs.attachment import encode_attachment
 from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
 from evstream.codecs.packets import to_packet
-from evstream.sources import open_source
-from evstream.sources.zenoh_session import drain, open_session
 
 ROOT = Path(__file__).resolve().parents[1]
 TURNTABLE = ROOT / "recordings" / "turntable.npz"
@@ -391,9 +391,8 @@ def test_viewer_save_per_camera_and_frames_republished(procs, tmp_path):
 def test_subscribe_logs_into_a_running_viewer(procs, tmp_path):
     """`subscribe --viewer URL` logs into a Rerun viewer that is already running: here the wheel's own
     `rerun`, listening on loopback and saving what it receives, read back afterwards."""
-    from rerun.chunk import RrdReader
-
     from evstream.sinks.rerun_viewer import rerun_binary, wait_listening
+    from rerun.chunk import RrdReader
 
     rr_port, port = free_port(), free_port()
     received, log = tmp_path / "received.rrd", tmp_path / "rerun.log"
