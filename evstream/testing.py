@@ -210,13 +210,52 @@ def assert_frames_equal(a: list[Frame], b: list[Frame], what: str = "frames") ->
             )
 
 
-def assert_framer_causal(make: Callable[[], object], stream: EventChunk, seed=0) -> None:
-    """Frames a framer emits while fed a prefix are the same whatever events come after it."""
+def assert_framer_causal(make: Callable[[], object], stream: EventChunk, seed=0, *, cuts: int = 3) -> None:
+    """The frames a framer emits once fed a prefix (its watermark the prefix's last event) are the
+    first frames of its output for the whole stream, in one chunk, whatever events come after the
+    prefix: a framer that peeks at later events in its chunk, or emits a frame before the watermark
+    has closed it, differs from its own prefix output for one future or another. `cuts` random
+    prefixes, each with a different future."""
     if len(stream) < 2:
         return
-    m, altered = _other_future(stream, _rng(seed))
-    emitted = []
-    for s in (stream, altered):
-        framer = make()  # the prefix's watermark must not reveal the next event's time
-        emitted.append(framer.push(s[:m].replace(t_end=int(s.t[m - 1]))))
-    assert_frames_equal(emitted[0], emitted[1], f"frames emitted after a prefix of {m} events")
+    rng = _rng(seed)
+    own = frames_of(make(), [stream])
+    for _ in range(cuts):
+        m, altered = _other_future(stream, rng)
+        early = make().push(stream[:m].replace(t_end=int(stream.t[m - 1])))
+        for name, whole in (("its own future", own), ("a different future", frames_of(make(), [altered]))):
+            assert_frames_equal(whole[: len(early)], early,
+                                f"first frames of the whole stream with {name} vs those emitted after {m} events")
+
+
+def assert_cameras_independent(make: Callable[[], object], streams: Sequence[EventChunk], seed=0, *,
+                               framer: bool = False) -> None:
+    """Several cameras, each with its own `make()` instance (a stage, or a framer if `framer`), fed
+    interleaved chunks as a live subscriber does: each camera's output equals that camera's run
+    alone, bit for bit. Catches state shared between instances (a class attribute, a module
+    global, one object handed to every camera)."""
+    rng = _rng(seed)
+    pieces = [split(s, random_bounds(rng, len(s))) for s in streams]
+
+    def step(obj, c):
+        return obj.push(c) if framer else [obj(c).classes()]
+
+    def result(obj, parts):
+        if framer:
+            return [*parts, *obj.finish()]
+        return np.concatenate(parts) if parts else np.zeros(0, np.uint8)
+
+    alone = []
+    for chunks in pieces:
+        obj = make()
+        alone.append(result(obj, [out for c in chunks for out in step(obj, c)]))
+    objs = [make() for _ in streams]
+    outs: list[list] = [[] for _ in streams]
+    done = [0] * len(streams)
+    order = [k for k, chunks in enumerate(pieces) for _ in chunks]
+    rng.shuffle(order)
+    for k in order:  # cameras interleaved at random, each camera's own chunks in order
+        outs[k].extend(step(objs[k], pieces[k][done[k]]))
+        done[k] += 1
+    for k in range(len(streams)):
+        _compare(alone[k], result(objs[k], outs[k]), f"camera {k} of {len(streams)} vs the same camera alone")
