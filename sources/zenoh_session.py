@@ -14,7 +14,9 @@ import time
 
 import zenoh
 
-__all__ = ["DEFAULT_ENDPOINT", "MODES", "check_endpoint", "config", "drain", "open_session", "watch_transports"]
+__all__ = [
+    "DEFAULT_ENDPOINT", "MODES", "check_endpoint", "config", "drain", "endpoints", "open_session", "watch_transports",
+]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 MODES = ("peer", "client", "router")
@@ -44,23 +46,43 @@ def config(*, mode: str = "peer", listen=(), connect=(), multicast: bool = False
     return c
 
 
-def open_session(*, mode: str | None = None, listen=(), connect=(), multicast: bool = False,
-                 max_message_bytes: int = 1 << 30) -> zenoh.Session:
-    """Open a session. With neither `listen` nor `connect`: a router listens on DEFAULT_ENDPOINT, anything
-    else connects to it. `mode` defaults to client when only connecting (all traffic through the router),
-    peer otherwise."""
+def endpoints(mode: str | None, listen=(), connect=()) -> tuple[str, list[str], list[str]]:
+    """The mode and endpoints a session gets: with neither `listen` nor `connect`, a router listens on
+    DEFAULT_ENDPOINT and anything else connects there as a client (so `evstream router`, `evstream
+    subscribe`, `evstream publish` with no flags meet); a mode left open is client when only connecting,
+    else peer."""
     listen, connect = list(listen), list(connect)
-    if mode is None:
-        mode = "client" if connect and not listen else "peer"
     if not listen and not connect:
         (listen if mode == "router" else connect).append(DEFAULT_ENDPOINT)
+    if mode is None:
+        mode = "client" if connect and not listen else "peer"
+    return mode, listen, connect
+
+
+def open_session(*, mode: str | None = None, listen=(), connect=(), multicast: bool = False,
+                 max_message_bytes: int = 1 << 30, config_json: dict | None = None) -> zenoh.Session:
+    """Open a session. With neither `listen` nor `connect`: a router listens on DEFAULT_ENDPOINT, anything
+    else is a client of the router there (where `evstream router` with no flags listens). `mode` defaults to
+    client when only connecting (all traffic through the router), peer otherwise. `config_json`: more
+    Zenoh config keys (path -> value), e.g. queue sizes.
+
+    A client whose router is not there fails at once (Zenoh's client default: no retry), with an OSError
+    naming the endpoint and how to start a router."""
+    mode, listen, connect = endpoints(mode, listen, connect)
+    cfg = config(mode=mode, listen=listen, connect=connect, multicast=multicast,
+                 max_message_bytes=max_message_bytes)
+    for key, value in (config_json or {}).items():
+        cfg.insert_json5(key, json.dumps(value))
     try:
-        return zenoh.open(config(mode=mode, listen=listen, connect=connect, multicast=multicast,
-                                 max_message_bytes=max_message_bytes))
+        return zenoh.open(cfg)
     except zenoh.ZError as e:
         where = ", ".join([*(f"listen {x}" for x in listen), *(f"connect {x}" for x in connect)])
-        reason = str(e).split(" at /")[0].strip()  # drop the Rust source location
-        raise OSError(f"cannot open a Zenoh {mode} session ({where}): {reason}") from None
+        reason = str(e).split(" at /")[0].strip().rstrip("!")  # drop the Rust source location
+        hint = ""
+        if mode == "client" and "connect" in reason.lower():
+            hint = ("; is a Zenoh router running there? start one with `evstream router`"
+                    + ("" if connect == [DEFAULT_ENDPOINT] else f" --listen {connect[0]}"))
+        raise OSError(f"cannot open a Zenoh {mode} session ({where}): {reason}{hint}") from None
 
 
 def drain(session: zenoh.Session, timeout_s: float = 10.0) -> bool:

@@ -419,3 +419,59 @@ def test_subscribe_logs_into_a_running_viewer(procs, tmp_path):
             if "Points3D:positions" in rb.schema.names:
                 points += sum(len(row) for row in rb.column(rb.schema.names.index("Points3D:positions")).to_pylist())
     assert points == 174_999  # every event of the 0.3 s recording is under the point budget
+
+
+def _port_free(port: int) -> bool:
+    """Nothing listens on 127.0.0.1:`port` (SO_REUSEADDR, as Zenoh binds: old TIME_WAIT connections are fine)."""
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def test_no_flags_means_a_client_of_the_router_on_the_default_endpoint():
+    from evstream.sources.zenoh_session import DEFAULT_ENDPOINT, endpoints
+
+    assert endpoints(None) == ("client", [], [DEFAULT_ENDPOINT])
+    assert endpoints("router") == ("router", [DEFAULT_ENDPOINT], [])
+    assert endpoints(None, connect=["tcp/127.0.0.1:1"]) == ("client", [], ["tcp/127.0.0.1:1"])
+    assert endpoints(None, listen=["tcp/127.0.0.1:1"]) == ("peer", ["tcp/127.0.0.1:1"], [])
+
+
+def test_no_router_is_one_line_naming_the_endpoint_and_how_to_start_one(tmp_path):
+    port = free_port()
+    for args in (["subscribe", "evstream/*/events", "--idle-s", "1"],
+                 ["publish", str(BAR), "--key", "evstream/front/events"]):
+        r = subprocess.run([sys.executable, "-m", "evstream.cli", *args, "--connect", f"tcp/127.0.0.1:{port}"],
+                           cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 1 and len(lines) == 1, r.stderr
+        assert f"tcp/127.0.0.1:{port}" in lines[0] and "evstream router" in lines[0]
+    if not _port_free(7447):
+        pytest.skip("port 7447 is in use: cannot try the no-flag commands without a router")
+    for args in (["subscribe", "evstream/*/events", "--idle-s", "1"],
+                 ["publish", str(BAR), "--key", "evstream/front/events"]):
+        r = subprocess.run([sys.executable, "-m", "evstream.cli", *args], cwd=ROOT, capture_output=True, text=True,
+                           timeout=TIMEOUT_S)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 1 and len(lines) == 1, r.stderr
+        assert "tcp/127.0.0.1:7447" in lines[0] and "`evstream router`" in lines[0]
+
+
+def test_readme_live_commands_with_no_flags_deliver_every_event(procs):
+    """The README's three commands exactly, on the default endpoint tcp/127.0.0.1:7447: no --connect."""
+    if not _port_free(7447):
+        pytest.skip("port 7447 is in use (another router?): the no-flag commands need it free")
+    router = procs.start("router")
+    procs.wait_for(router, "listening on tcp/127.0.0.1:7447")
+    sub = procs.start("subscribe", "evstream/*/events", "--until-end", "--json")
+    procs.wait_for(sub, "subscribed to")
+    pub = procs.start("publish", str(BAR), "--key", "evstream/front/events", "--wait-subscribers", "10", "--json")
+    sent, got = procs.result(pub), procs.result(sub)
+    n = len(_events(BAR)[0])
+    assert sent["events"] == n and sent["unmatched_packets"] == 0
+    front = got["cameras"]["front"]
+    assert front["events"] == n and front["missing"] == 0 and got["stopped_by"] == "end of stream"
