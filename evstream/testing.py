@@ -203,7 +203,9 @@ def assert_frames_equal(a: list[Frame], b: list[Frame], what: str = "frames") ->
         raise AssertionError(f"{what}: {len(a)} frames vs {len(b)}")
     for i, (fa, fb) in enumerate(zip(a, b)):
         same = (fa.t_start, fa.t_end, fa.n_events) == (fb.t_start, fb.t_end, fb.n_events)
-        if not same or not np.array_equal(fa.counts, fb.counts):
+        da, db = getattr(fa, "data", None), getattr(fb, "data", None)  # representations: their arrays too
+        same_data = (da is None) == (db is None) and (da is None or (da.dtype == db.dtype and np.array_equal(da, db)))
+        if not same or not same_data or not np.array_equal(fa.counts, fb.counts):
             raise AssertionError(
                 f"{what}: frame {i} differs: ({fa.t_start}, {fa.t_end}, {fa.n_events}) vs "
                 f"({fb.t_start}, {fb.t_end}, {fb.n_events})"

@@ -1,0 +1,416 @@
+"""Representations for learning, as framers: time surface, voxel grid, two-channel histogram, event-count
+and last-timestamp images, each a float32 (C, H, W) array per window.
+
+The windows are the existing framers' (`window` = fw, fn, oa or adaptive, with their parameters): a
+representation framer drives one of them and turns each frame it emits into a `Representation`, the
+same frame with a `data` array beside its counts. So the windows (times, closing on the watermark,
+empty frames, the paper's adaptive overlap) are exactly those of `evstream frames --framer KIND`.
+
+Per window [t_start, t_end) holding n counted events (SIGNAL ones unless `all_events`):
+- `histogram` (2 channels, OFF then ON): events per pixel and polarity (the frame's counts, which
+  saturate at 65535 per pixel and window);
+- `count` (1 channel): events per pixel, both polarities;
+- `timestamp` (2 channels, OFF then ON): the newest event of the window per pixel and polarity, as
+  (t − t_start + 1) / (t_end − t_start) in (0, 1]; 0 where the pixel had no event in the window;
+- `timesurface` (2 channels, OFF then ON): exp(−(t_end − t_last) / τ), t_last the newest event at that
+  pixel and polarity before t_end over the whole stream so far (not only this window), 0 where none;
+- `voxel` (B channels): Zhu et al. (2019)'s voxel grid, V_b = Σ p_i · max(0, 1 − |b − t*_i|) with
+  p_i = ±1 and t*_i = (B − 1)(t_i − t_start) / (t_end − 1 − t_start): bilinear in time over the
+  window's span (for fixed-count windows t_start and t_end − 1 are the first and last events, as in
+  the paper and tonic).
+
+State: the events a still open window may hold (times and flat pixel indices, in stream order) and,
+for the time surface, one int64 per pixel and polarity: memory O(W·H + events per window), never the
+stream. Each window's array is computed when it closes from the buffered events in stream order, so
+it is bit-identical however the stream was chunked. Arrays are fresh, C-contiguous float32:
+`torch.from_numpy(rep.data)` shares them without a copy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from numba import njit
+
+from ..events import EventChunk, Frame
+from ..pipeline import build, register
+from .base import FramerBase, check_positive_int
+from .overlap import flat_index, flat_index_of
+
+WINDOWS = ("fw", "fn", "oa", "adaptive")
+# The windowing framers' parameters a representation passes on (None: the window's default).
+WINDOW_PARAMS = ("window_us", "stride_us", "n_events", "max_window_us", "n_base", "k_us_per_event",
+                 "overlap_max_us", "overlap_init_us", "max_empty_frames")
+NEVER_US = -(1 << 62)  # "no event yet": exp(−(t − NEVER_US)/τ) is exactly 0 for any τ we accept
+MAX_TAU_US = 1 << 40
+
+
+@dataclass(frozen=True, eq=False)
+class Representation(Frame):
+    """A frame with its representation: `data` float32 (C, H, W), C-contiguous, owned by this object;
+    `kind` names the representation, `channels` its channels. `counts` are the window's event counts."""
+
+    kind: str
+    channels: tuple
+    data: np.ndarray
+
+
+# -- kernels --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def voxel_kernel(buf_t, buf_f, a, b, t_start, t_end, bins, hw, out):
+    """Add events [a, b) of the buffer to the flat voxel grid `out` (bins·H·W): polarity ±1 shared
+    bilinearly between the two bins around t* = (bins − 1)(t − t_start) / (t_end − 1 − t_start)."""
+    scale = (bins - 1) / max(1, t_end - 1 - t_start)
+    for j in range(a, b):
+        f = buf_f[j]
+        on = f >= hw
+        pix = f - hw if on else f
+        v = 1.0 if on else -1.0
+        tn = (buf_t[j] - t_start) * scale
+        lo = min(int(tn), bins - 1)
+        w_hi = tn - lo
+        out[lo * hw + pix] += v * (1.0 - w_hi)
+        if lo + 1 < bins:
+            out[(lo + 1) * hw + pix] += v * w_hi
+
+
+@njit(cache=True, nogil=True)
+def timestamp_kernel(buf_t, buf_f, a, b, t_start, t_end, out):
+    """out[f] = (t − t_start + 1) / (t_end − t_start) of the newest event [a, b) at each flat index f
+    (events are in time order, so the last write wins)."""
+    inv = 1.0 / (t_end - t_start)
+    for j in range(a, b):
+        out[buf_f[j]] = (buf_t[j] - t_start + 1) * inv
+
+
+@njit(cache=True, nogil=True)
+def last_time_kernel(buf_t, buf_f, a, b, last_t):
+    """last_t[f] = t of the newest event [a, b) at each flat index f."""
+    for j in range(a, b):
+        last_t[buf_f[j]] = buf_t[j]
+
+
+EXP_FLOOR = -110.0  # float32 exp underflows to 0 below about −103.97
+
+
+@njit(cache=True, nogil=True)
+def surface_exponent(last_t, t_now, inv_tau, out):
+    """out[f] = max(−(t_now − last_t[f]) / τ, EXP_FLOOR) in float32 (the µs difference taken exactly in
+    int64 first). `surface` then takes numpy's vectorised float32 exp: ~30x faster than exp in this
+    loop, which numba does not vectorise."""
+    for f in range(len(last_t)):
+        out[f] = max(np.float32((last_t[f] - t_now) * inv_tau), np.float32(EXP_FLOOR))
+
+
+def surface(last_t: np.ndarray, t_now: int, tau_us: float, out: np.ndarray) -> None:
+    """out = exp(−(t_now − last_t) / τ) as float32; 0 where last_t is NEVER_US."""
+    surface_exponent(last_t, t_now, 1.0 / tau_us, out)
+    np.exp(out, out=out)
+
+
+# -- the buffered events of the open windows ------------------------------------------------------
+class _EventBuffer:
+    """Counted events in stream order (time, flat index p·H·W + y·W + x), addressed by absolute index
+    (events since the stream began); `drop_before(k)` forgets those below k. Grows by doubling, keeps
+    half free so compaction copies rarely: bounded by the events the open windows still need."""
+
+    def __init__(self, flat_dtype):
+        self.t = np.zeros(1 << 12, np.int64)
+        self.f = np.zeros(1 << 12, flat_dtype)
+        self.base = 0  # absolute index of t[0]
+        self.n = 0  # events held: absolute indices [base, base + n)
+
+    @property
+    def end(self) -> int:
+        return self.base + self.n
+
+    def append(self, chunk: EventChunk, cls, use_cls: bool, width: int, hw: int) -> None:
+        idx = np.flatnonzero(cls == 0) if use_cls else None
+        k = len(chunk) if idx is None else len(idx)
+        if self.n + k > len(self.t):
+            size = max(2 * len(self.t), 2 * (self.n + k))
+            self.t = np.concatenate((self.t[: self.n], np.zeros(size - self.n, np.int64)))
+            self.f = np.concatenate((self.f[: self.n], np.zeros(size - self.n, self.f.dtype)))
+        at = self.n
+        if idx is None:
+            self.t[at : at + k] = chunk.t
+            flat_index(chunk.x, chunk.y, chunk.p, 0, k, width, hw, self.f, at)
+        else:
+            self.t[at : at + k] = chunk.t[idx]
+            flat_index_of(chunk.x, chunk.y, chunk.p, idx, width, hw, self.f, at)
+        self.n += k
+
+    def index_of_time(self, t: int, low: int) -> int:
+        """The absolute index of the first held event at or after `low` with time >= t."""
+        a = low - self.base
+        return low + int(np.searchsorted(self.t[a : self.n], t, side="left"))
+
+    def drop_before(self, k: int) -> None:
+        k = min(max(k, self.base), self.end)
+        gone = k - self.base
+        if gone == 0:
+            return
+        keep = self.n - gone
+        if keep:
+            self.t[:keep] = self.t[gone : self.n]
+            self.f[:keep] = self.f[gone : self.n]
+        self.base, self.n = k, keep
+
+
+# -- framers --------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class RepresentationFramer(FramerBase):
+    """Base of the representation framers: drives the windowing framer `window` (fw, fn, oa, adaptive)
+    with its parameters (None: the window's default; one it does not have is an error) and adds each
+    window's representation. Subclasses give `channels_of` and `_compute`."""
+
+    needs_events: ClassVar[bool] = True
+
+    window: str = "fw"
+    window_us: int | None = None
+    stride_us: int | None = None
+    n_events: int | None = None
+    max_window_us: int | None = None
+    n_base: int | None = None
+    k_us_per_event: float | None = None
+    overlap_max_us: int | None = None
+    overlap_init_us: int | None = None
+    max_empty_frames: int | None = None
+    all_events: bool = False
+
+    def params(self) -> dict:
+        """The parameters given (a window parameter left at None takes the window's default)."""
+        return {k: v for k, v in super().params().items() if v is not None}
+
+    # -- construction --------------------------------------------------------------------------
+    def _window_spec(self) -> dict:
+        if self.window not in WINDOWS:
+            raise ValueError(f"{self.kind}: window must be one of {', '.join(WINDOWS)}, got {self.window!r}")
+        spec = {"kind": self.window, "all_events": self.all_events}
+        given = {name: getattr(self, name) for name in WINDOW_PARAMS if getattr(self, name) is not None}
+        accepted = {f.name for f in dataclasses.fields(build("framer", {"kind": self.window}))}
+        wrong = sorted(set(given) - accepted)
+        if wrong:
+            raise ValueError(f"{self.kind}: {wrong[0]} does not apply to window {self.window!r} "
+                             f"(its parameters: {', '.join(sorted(accepted - {'all_events'}))})")
+        return {**spec, **given}
+
+    def _setup(self) -> None:
+        if not isinstance(self.all_events, (bool, np.bool_)):
+            raise ValueError(f"{self.kind}: all_events must be true or false, got {self.all_events!r}")
+        self._spec = self._window_spec()
+        build("framer", self._spec)  # check the window's parameters now, not at the first event
+        self._reset()
+
+    def _reset(self) -> None:
+        self.inner = build("framer", self._spec)
+        self.geometry = None
+        self._buf: _EventBuffer | None = None
+        self._assigned = 0  # fn: absolute index of the first buffered event no emitted window holds
+
+    @property
+    def channels(self) -> tuple:
+        return self.channels_of()
+
+    def channels_of(self) -> tuple:
+        raise NotImplementedError
+
+    # -- streaming ------------------------------------------------------------------------------
+    def push(self, chunk: EventChunk) -> list[Representation]:
+        if len(chunk) or self.geometry is not None:
+            self._geometry(chunk)
+            if self.needs_events:
+                cls, use_cls = self._cls(chunk)
+                self._buf.append(chunk, cls, use_cls, self._width, self._hw)
+        out = self._represent(self.inner.push(chunk))
+        self._forget()
+        return out
+
+    def finish(self) -> list[Representation]:
+        out = self._represent(self.inner.finish())
+        self._reset()
+        return out
+
+    def _geometry(self, chunk: EventChunk) -> None:
+        if self.geometry is None:
+            super()._reset()
+            super()._geometry(chunk)
+            flat_dtype = np.uint32 if 2 * self._hw < 2**32 else np.int64
+            self._buf = _EventBuffer(flat_dtype)
+            self._on_geometry()
+
+    def _on_geometry(self) -> None:
+        """Allocate per-sensor state (subclasses)."""
+
+    def _represent(self, frames: list[Frame]) -> list[Representation]:
+        out = []
+        for fr in frames:
+            a = b = 0
+            if self.needs_events:
+                a, b = self._events_of(fr)
+            data = self._compute(fr, a, b)
+            out.append(Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind,
+                                      self.channels, data))
+        return out
+
+    def _events_of(self, fr: Frame) -> tuple[int, int]:
+        """Absolute buffer indices [a, b) of the frame's events: by count for fixed-count windows (an
+        event at the closing time may belong to the next one), by time for the others."""
+        buf = self._buf
+        if self.window == "fn":
+            a = self._assigned
+            self._assigned = a + fr.n_events
+            return a, a + fr.n_events
+        a = buf.index_of_time(fr.t_start, buf.base)
+        return a, buf.index_of_time(fr.t_end, a)
+
+    def _forget(self) -> None:
+        """Drop the buffered events no open or future window can hold."""
+        buf = self._buf
+        if buf is None:
+            return
+        if self.window == "fn":
+            keep = self._assigned
+        else:
+            start = getattr(self.inner, "start", None)
+            keep = buf.end if start is None else buf.index_of_time(start, buf.base)
+        buf.drop_before(min(keep, self._kept_from()))
+
+    def _kept_from(self) -> int:
+        """Subclasses that consume events across windows keep them from here (absolute index)."""
+        return 1 << 62
+
+    def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def _new_data(self, channels: int) -> np.ndarray:
+        g = self.geometry
+        return np.zeros((channels, g.height, g.width), np.float32)
+
+    def _local(self, a: int, b: int) -> tuple[int, int]:
+        base = self._buf.base
+        return a - base, b - base
+
+
+@register("framer", "histogram")
+@dataclass(eq=False)
+class Histogram(RepresentationFramer):
+    """Two-channel event histogram (OFF, ON): events per pixel and polarity in each window."""
+
+    needs_events: ClassVar[bool] = False
+
+    def __post_init__(self):
+        self._setup()
+
+    def channels_of(self) -> tuple:
+        return ("off", "on")
+
+    def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
+        return np.ascontiguousarray(fr.counts, dtype=np.float32)
+
+
+@register("framer", "count")
+@dataclass(eq=False)
+class CountImage(RepresentationFramer):
+    """Event-count image (one channel): events per pixel in each window, both polarities."""
+
+    needs_events: ClassVar[bool] = False
+
+    def __post_init__(self):
+        self._setup()
+
+    def channels_of(self) -> tuple:
+        return ("events",)
+
+    def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
+        out = np.empty((1, *fr.counts.shape[1:]), np.float32)
+        np.add(fr.counts[0], fr.counts[1], out=out[0], dtype=np.float32)
+        return out
+
+
+@register("framer", "timestamp")
+@dataclass(eq=False)
+class TimestampImage(RepresentationFramer):
+    """Last-timestamp image (OFF, ON): the newest event of the window per pixel, as (t − t_start + 1) /
+    (t_end − t_start) in (0, 1]; 0 where none."""
+
+
+    def __post_init__(self):
+        self._setup()
+
+    def channels_of(self) -> tuple:
+        return ("off", "on")
+
+    def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
+        out = self._new_data(2)
+        la, lb = self._local(a, b)
+        timestamp_kernel(self._buf.t, self._buf.f, la, lb, fr.t_start, fr.t_end, out.reshape(-1))
+        return out
+
+
+@register("framer", "voxel")
+@dataclass(eq=False)
+class VoxelGrid(RepresentationFramer):
+    """Voxel grid (Zhu et al. 2019): `bins` temporal bins per window, polarity ±1 shared bilinearly in
+    time between the two nearest bins."""
+
+    bins: int = 5
+
+    def __post_init__(self):
+        check_positive_int(self, "bins")
+        self._setup()
+
+    def channels_of(self) -> tuple:
+        return tuple(f"bin{b}" for b in range(self.bins))
+
+    def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
+        out = self._new_data(self.bins)
+        la, lb = self._local(a, b)
+        voxel_kernel(self._buf.t, self._buf.f, la, lb, fr.t_start, fr.t_end, self.bins, self._hw, out.reshape(-1))
+        return out
+
+
+@register("framer", "timesurface")
+@dataclass(eq=False)
+class TimeSurface(RepresentationFramer):
+    """Time surface (OFF, ON) at each window's end: exp(−(t_end − t_last)/`tau_us`), t_last the newest
+    event at that pixel and polarity so far in the stream; 0 where none yet."""
+
+    tau_us: float = 50_000.0
+
+    def __post_init__(self):
+        tau = self.tau_us
+        if isinstance(tau, bool) or not isinstance(tau, (int, float, np.number)) or not 0 < tau <= MAX_TAU_US:
+            raise ValueError(f"timesurface: tau_us must be a number in (0, 2^40] µs, got {tau!r}")
+        self.tau_us = float(tau)
+        self._setup()
+
+    def channels_of(self) -> tuple:
+        return ("off", "on")
+
+    def _reset(self) -> None:
+        super()._reset()
+        self._last_t = None
+        self._applied = 0  # absolute index of the first buffered event not yet in _last_t
+
+    def _on_geometry(self) -> None:
+        self._last_t = np.full(2 * self._hw, NEVER_US, np.int64)
+
+    def _kept_from(self) -> int:
+        return self._applied
+
+    def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
+        if b > self._applied:  # windows end in order: bring the surface up to this one's end
+            la, lb = self._local(self._applied, b)
+            last_time_kernel(self._buf.t, self._buf.f, la, lb, self._last_t)
+            self._applied = b
+        out = self._new_data(2)
+        if self._last_t is not None:
+            surface(self._last_t, fr.t_end, self.tau_us, out.reshape(-1))
+        return out
+
+
+REPRESENTATIONS = ("timesurface", "voxel", "histogram", "count", "timestamp")

@@ -1,0 +1,224 @@
+"""Representations (time surface, voxel grid, histogram, count, last timestamp) as framers: each checked
+against a plain-Python definition over the frames the windowing framer emits, and with the invariant kit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evstream.events import EventChunk, Geometry
+from evstream.framing.represent import (
+    NEVER_US,
+    REPRESENTATIONS,
+    Representation,
+    surface,
+    timestamp_kernel,
+    voxel_kernel,
+)
+from evstream.pipeline import Pipeline, build
+from evstream.testing import (
+    assert_bounded_state,
+    assert_chunk_invariant,
+    assert_framer_causal,
+    frames_of,
+    random_stream,
+)
+
+WINDOWS = {
+    "fw": {"window_us": 3000},
+    "fn": {"n_events": 120, "max_window_us": 20_000},
+    "oa": {"window_us": 4000, "stride_us": 1500},
+    "adaptive": {"window_us": 4000, "n_base": 60},
+}
+EXTRA = {"voxel": {"bins": 4}, "timesurface": {"tau_us": 2000.0}}
+
+
+def make(kind, window, **more):
+    return lambda: build("framer", {"kind": kind, "window": window, **WINDOWS[window], **EXTRA.get(kind, {}), **more})
+
+
+# -- plain-Python definitions ---------------------------------------------------------------------
+def window_events(stream: EventChunk, frames, window: str, all_events=False):
+    """The counted events of each frame, found the plain way: by time, or by count for fn."""
+    counted = np.ones(len(stream), bool) if all_events or stream.cls is None else stream.cls == 0
+    t, x, y, p = stream.t[counted], stream.x[counted], stream.y[counted], stream.p[counted]
+    out, k = [], 0
+    for fr in frames:
+        if window == "fn":
+            sel = slice(k, k + fr.n_events)
+            k += fr.n_events
+        else:
+            idx = [i for i in range(len(t)) if fr.t_start <= t[i] < fr.t_end]
+            sel = slice(idx[0], idx[-1] + 1) if idx else slice(0, 0)
+        out.append((t[sel], x[sel], y[sel], p[sel], sel.stop))
+    return out, (t, x, y, p)
+
+
+def reference(kind, stream, frames, window, bins=4, tau_us=2000.0):
+    g = stream.geometry
+    per_window, (ta, xa, ya, pa) = window_events(stream, frames, window)
+    refs = []
+    for fr, (t, x, y, p, upto) in zip(frames, per_window):
+        assert len(t) == fr.n_events
+        if kind == "histogram":
+            d = np.zeros((2, g.height, g.width))
+            for i in range(len(t)):
+                d[p[i], y[i], x[i]] += 1
+        elif kind == "count":
+            d = np.zeros((1, g.height, g.width))
+            for i in range(len(t)):
+                d[0, y[i], x[i]] += 1
+        elif kind == "timestamp":
+            d = np.zeros((2, g.height, g.width))
+            for i in range(len(t)):
+                d[p[i], y[i], x[i]] = (int(t[i]) - fr.t_start + 1) / (fr.t_end - fr.t_start)
+        elif kind == "voxel":
+            d = np.zeros((bins, g.height, g.width))
+            span = max(1, fr.t_end - 1 - fr.t_start)
+            for i in range(len(t)):
+                tn = (bins - 1) * (int(t[i]) - fr.t_start) / span
+                for b in range(bins):
+                    d[b, y[i], x[i]] += (1 if p[i] else -1) * max(0.0, 1 - abs(b - tn))
+        elif kind == "timesurface":
+            d = np.zeros((2, g.height, g.width))
+            last = {}
+            # every event before the window's end; for fn, up to its last event in stream order (one
+            # at the same time after it belongs to the next window, and may not have arrived yet)
+            for i in range(upto if window == "fn" else len(ta)):
+                if ta[i] < fr.t_end:
+                    last[(pa[i], ya[i], xa[i])] = int(ta[i])
+            for (pp, yy, xx), tl in last.items():
+                d[pp, yy, xx] = math.exp(-(fr.t_end - tl) / tau_us)
+        refs.append(d)
+    return refs
+
+
+def labelled(seed, n):
+    s = random_stream(seed, n, Geometry(9, 7), mean_dt_us=40)
+    return s.replace(cls=s.label)  # some events are not SIGNAL: they must not be counted
+
+
+@pytest.mark.parametrize("window", sorted(WINDOWS))
+@pytest.mark.parametrize("kind", REPRESENTATIONS)
+def test_matches_the_definition(kind, window):
+    stream = labelled(3, 1500)
+    frames = frames_of(make(kind, window)(), [stream])
+    assert len(frames) > 5
+    plain = frames_of(build("framer", {"kind": window, **WINDOWS[window]}), [stream])
+    assert [(f.t_start, f.t_end, f.n_events) for f in frames] == [(f.t_start, f.t_end, f.n_events) for f in plain]
+    for fr, ref in zip(frames, reference(kind, stream, frames, window)):
+        assert isinstance(fr, Representation) and fr.kind == kind
+        assert fr.data.dtype == np.float32 and fr.data.flags.c_contiguous and fr.data.flags.owndata
+        assert fr.data.shape == ref.shape and len(fr.channels) == ref.shape[0]
+        np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
+def test_voxel_of_a_fixed_count_window_spans_first_to_last_event():
+    """fn windows: t_start and t_end − 1 are the first and last events, as in tonic and Zhu et al."""
+    g = Geometry(4, 1)
+    s = EventChunk.from_arrays([10, 20, 30, 40], [0, 1, 2, 3], [0, 0, 0, 0], [1, 1, 0, 1], g)
+    fr, = frames_of(build("framer", {"kind": "voxel", "window": "fn", "n_events": 4, "bins": 3}), [s])
+    np.testing.assert_allclose(fr.data[:, 0, :], [[1, 1 / 3, 0, 0], [0, 2 / 3, -2 / 3, 0], [0, 0, -1 / 3, 1]],
+                               atol=1e-6)
+
+
+def test_time_surface_remembers_events_of_earlier_windows():
+    g = Geometry(2, 1)
+    s = EventChunk.from_arrays([0, 1000, 2500], [0, 1, 1], [0, 0, 0], [1, 0, 0], g, t_end=6000)
+    frs = frames_of(build("framer", {"kind": "timesurface", "window_us": 1000, "tau_us": 1000}), [s])
+    assert [f.t_end for f in frs] == [1000, 2000, 3000, 4000, 5000, 6000]
+    assert frs[-1].data[1, 0, 0] == pytest.approx(math.exp(-6), rel=1e-6)  # the ON event at 0, 6 ms on
+    assert frs[-1].data[0, 0, 1] == pytest.approx(math.exp(-3.5), rel=1e-6)
+    assert frs[0].data[0, 0, 1] == 0  # the OFF event at 1000 µs is not before the first window's end
+
+
+def test_a_window_parameter_the_window_does_not_have_is_refused():
+    with pytest.raises(ValueError, match="n_events does not apply to window 'fw'"):
+        build("framer", {"kind": "voxel", "n_events": 10})
+    with pytest.raises(ValueError, match="window must be one of"):
+        build("framer", {"kind": "histogram", "window": "hourly"})
+    with pytest.raises(ValueError, match="tau_us"):
+        build("framer", {"kind": "timesurface", "tau_us": 0})
+    with pytest.raises(ValueError, match="bins"):
+        build("framer", {"kind": "voxel", "bins": 0})
+    with pytest.raises(ValueError, match="stride_us"):
+        build("framer", {"kind": "voxel", "window": "oa", "window_us": 100, "stride_us": 200})
+
+
+def test_from_toml_and_its_parameters_round_trip(tmp_path):
+    p = tmp_path / "p.toml"
+    p.write_text('[framer]\nkind = "voxel"\nwindow = "adaptive"\nbins = 3\nwindow_us = 5000\nn_base = 100\n')
+    pipe = Pipeline.from_toml(p)
+    assert pipe.describe()["framer"] == {"kind": "voxel", "bins": 3, "window": "adaptive", "window_us": 5000,
+                                         "n_base": 100, "all_events": False}
+    again = build("framer", pipe.describe()["framer"])
+    s = labelled(1, 800)
+    assert len(frames_of(again, [s])) == len(frames_of(pipe.framer, [s]))
+
+
+def test_torch_takes_the_arrays_without_a_copy():
+    torch = pytest.importorskip("torch", reason="torch not installed: the zero-copy claim is checked on numpy")
+    fr = frames_of(make("voxel", "fw")(), [labelled(2, 600)])[0]
+    assert torch.from_numpy(fr.data).data_ptr() == fr.data.ctypes.data
+
+
+# -- kernels against plain Python on random input ---------------------------------------------------
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 300), st.integers(1, 6))
+def test_kernels_match_plain_python(seed, n, bins):
+    rng = np.random.default_rng(seed)
+    hw = 12
+    t = np.sort(rng.integers(100, 100 + max(1, n) * 3, n)).astype(np.int64)
+    f = rng.integers(0, 2 * hw, n).astype(np.uint32)
+    t_start, t_end = 100, 100 + max(1, n) * 3 + int(rng.integers(0, 5))
+    a, b = sorted(rng.integers(0, n + 1, 2)) if n else (0, 0)
+
+    vox = np.zeros(bins * hw, np.float32)
+    voxel_kernel(t, f, a, b, t_start, t_end, bins, hw, vox)
+    ref = np.zeros(bins * hw)
+    for j in range(a, b):
+        tn = (bins - 1) * (t[j] - t_start) / max(1, t_end - 1 - t_start)
+        for k in range(bins):
+            ref[k * hw + f[j] % hw] += (1 if f[j] >= hw else -1) * max(0, 1 - abs(k - tn))
+    np.testing.assert_allclose(vox, ref, atol=1e-5)
+
+    ts = np.zeros(2 * hw, np.float32)
+    timestamp_kernel(t, f, a, b, t_start, t_end, ts)
+    ref = np.zeros(2 * hw)
+    for j in range(a, b):
+        ref[f[j]] = (t[j] - t_start + 1) / (t_end - t_start)
+    np.testing.assert_allclose(ts, ref, rtol=1e-6)
+
+    last = np.where(rng.random(2 * hw) < 0.3, NEVER_US, rng.integers(0, t_end, 2 * hw)).astype(np.int64)
+    sf = np.zeros(2 * hw, np.float32)
+    tau = float(rng.uniform(1, 5000))
+    surface(last, t_end, tau, sf)
+    ref = [0.0 if v == NEVER_US else math.exp(-(t_end - v) / tau) for v in last]
+    np.testing.assert_allclose(sf, ref, rtol=1e-5, atol=1e-30)
+
+
+# -- the invariant kit ------------------------------------------------------------------------------
+@settings(max_examples=6, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(REPRESENTATIONS), st.sampled_from(sorted(WINDOWS)))
+def test_chunk_invariant_and_causal(seed, kind, window):
+    stream = labelled(seed, 700)
+    assert_chunk_invariant(make(kind, window), stream, seed, apply=frames_of, splits=2, one_event=False)
+    # the kit's other future carries no classes, so the causal check counts every event
+    assert_framer_causal(make(kind, window), random_stream(seed, 700, Geometry(9, 7), mean_dt_us=40), seed)
+
+
+@pytest.mark.parametrize("kind", REPRESENTATIONS)
+def test_one_event_chunks(kind):
+    stream = labelled(11, 400)
+    for window in WINDOWS:
+        assert_chunk_invariant(make(kind, window), stream, 1, apply=frames_of, splits=1)
+
+
+@pytest.mark.parametrize("window", sorted(WINDOWS))
+def test_state_is_bounded(window):
+    for kind in ("timesurface", "voxel"):
+        assert_bounded_state(make(kind, window), lambda n: labelled(5, n), n=3000, feed=lambda f, c: f.push(c))
