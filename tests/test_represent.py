@@ -22,6 +22,7 @@ from evstream.framing.represent import (
 from evstream.pipeline import Pipeline, build
 from evstream.testing import (
     assert_bounded_state,
+    assert_cameras_independent,
     assert_chunk_invariant,
     assert_framer_causal,
     frames_of,
@@ -222,3 +223,9 @@ def test_one_event_chunks(kind):
 def test_state_is_bounded(window):
     for kind in ("timesurface", "voxel"):
         assert_bounded_state(make(kind, window), lambda n: labelled(5, n), n=3000, feed=lambda f, c: f.push(c))
+
+
+@pytest.mark.parametrize("kind", REPRESENTATIONS)
+def test_cameras_are_independent(kind):
+    streams = [labelled(k, 500) for k in range(3)]
+    assert_cameras_independent(make(kind, "adaptive"), streams, 2, framer=True)
