@@ -20,6 +20,7 @@ that are not a CDR EventPacket, undecodable events, coordinates outside the sens
 
 from __future__ import annotations
 
+import copy
 import sys
 import threading
 import time
@@ -231,7 +232,9 @@ class ZenohSubscription:
             return self._malformed(st, key, str(e))
         if seq is None:
             seq = packet.seq
-        restart = self._track_seq(st, seq)
+        # Nothing about the camera's sequence changes until the packet is accepted: a rejected packet
+        # (a hostile one claiming seq 2^64-1, say) must not count a gap, a restart or reset the pipeline.
+        restart = st.last_seq is not None and seq <= st.last_seq
         geometry = self.geometry
         if packet.width and packet.height:
             if max(packet.width, packet.height) > MAX_SENSOR_SIDE:  # one such packet took 13 GiB a stage
@@ -244,19 +247,26 @@ class ZenohSubscription:
         if geometry is None:
             return self._malformed(st, key, "packet gives no sensor size (width/height 0); pass --geometry")
         if st.decoder is None or restart:
-            st.decoder = PacketDecoder(absolute=kind == OURS)
-            st.last_t = None
+            decoder = PacketDecoder(absolute=kind == OURS)
+        elif st.decoder.absolute:
+            decoder = st.decoder  # each packet decodes alone: no stream state to spoil
+        else:
+            decoder = copy.deepcopy(st.decoder)  # one EVT3 stream across packets: kept only if accepted
+        last_t = None if restart else st.last_t
         try:
-            t, x, y, p = st.decoder.decode(packet)
+            t, x, y, p = decoder.decode(packet)
         except (PacketError, EventError, ValueError) as e:
             return self._malformed(st, key, f"events: {e}")
         if len(t):
             if int(x.max()) >= geometry.width or int(y.max()) >= geometry.height:
                 return self._malformed(st, key, f"event outside the {geometry} sensor")
-            if (len(t) > 1 and bool((np.diff(t) < 0).any())) or (st.last_t is not None and t[0] < st.last_t):
+            if (len(t) > 1 and bool((np.diff(t) < 0).any())) or (last_t is not None and t[0] < last_t):
                 return self._malformed(st, key, "event time goes back")
-            st.last_t = int(t[-1])
+            last_t = int(t[-1])
         chunk = EventChunk.from_arrays(t, x, y, p, geometry)
+        # accepted: now the sequence, the decoder and the counters move on
+        self._track_seq(st, seq)
+        st.decoder, st.last_t = decoder, last_t
         st.packets += 1
         st.events += len(t)
         st.bytes += n
@@ -265,7 +275,9 @@ class ZenohSubscription:
             st.add_latency((now_ns() - source_ns) * 1e-6, time.monotonic())
         return LivePacket(camera, key, chunk, seq, source_ns, restart)
 
-    def _track_seq(self, st: CameraStats, seq: int) -> bool:
+    @staticmethod
+    def _track_seq(st: CameraStats, seq: int) -> bool:
+        """Count a gap or a restart for an accepted packet's `seq`; True on a restart."""
         restart = False
         if st.first_seq is None:
             st.first_seq = seq

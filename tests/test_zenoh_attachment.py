@@ -74,3 +74,22 @@ def test_packetize_cuts_on_the_grid_and_keeps_every_event(dts, n_chunks, packet_
     cells = [set((p.t // packet_us).tolist()) for p in packets]
     assert all(len(c) == 1 for c in cells)  # one grid cell per packet
     assert len({next(iter(c)) for c in cells}) == len(cells)  # each cell once
+
+
+def test_encoding_names_are_lower_case_as_in_event_camera_codecs():
+    """event_camera_codecs matches "evt3" and "mono" exactly; so does PacketDecoder (live and MCAP)."""
+    import dataclasses
+
+    from evstream.codecs.event_packet import PacketError
+    from evstream.codecs.packets import PacketDecoder, to_packet
+
+    t = np.arange(10, dtype=np.int64) * 7
+    x = y = np.arange(10, dtype=np.uint16)
+    p = np.ones(10, np.uint8)
+    for enc in ("evt3", "mono"):
+        packet = to_packet(t, x, y, p, width=16, height=16, encoding=enc)
+        for absolute in (True, False):
+            assert np.array_equal(PacketDecoder(absolute=absolute).decode(packet)[0], t)
+            for other in (enc.upper(), enc.capitalize()):
+                with pytest.raises(PacketError, match="lower case"):
+                    PacketDecoder(absolute=absolute).decode(dataclasses.replace(packet, encoding=other))

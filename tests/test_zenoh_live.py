@@ -475,3 +475,44 @@ def test_readme_live_commands_with_no_flags_deliver_every_event(procs):
     assert sent["events"] == n and sent["unmatched_packets"] == 0
     front = got["cameras"]["front"]
     assert front["events"] == n and front["missing"] == 0 and got["stopped_by"] == "end of stream"
+
+
+def test_a_rejected_packet_leaves_the_sequence_alone_and_upper_case_evt3_is_refused(procs, tmp_path):
+    """A packet claiming seq 2^64-1 whose events lie outside its sensor is malformed, nothing more: no gap,
+    no restart, no pipeline reset, no second archive. A packet with encoding "EVT3" is refused as
+    event_camera_codecs refuses it (encoding names are lower case)."""
+    import dataclasses
+
+    from evstream.codecs.event_packet import decode_packet
+
+    port = free_port()
+    procs.router(port)
+    sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--archive",
+                           str(tmp_path / "seq.mcap"), "--until-end", "--idle-s", "40")
+    t, x, y, p, g = _events(TURNTABLE)
+    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
+                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 3000, 1000))]
+    hostile = encode_packet(to_packet(t[3000:3010], x[3000:3010], y[3000:3010], p[3000:3010], width=8, height=8,
+                                      seq=2**64 - 1))
+    upper = encode_packet(dataclasses.replace(decode_packet(good[1]), encoding="EVT3", seq=1))
+    session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        pub = matched_publisher(session, "evstream/cam1/events")
+        pub.put(good[0], attachment=encode_attachment(0, time.time_ns()))
+        pub.put(hostile, attachment=encode_attachment(2**64 - 1, time.time_ns()))
+        pub.put(upper, attachment=encode_attachment(1, time.time_ns()))
+        pub.put(good[1], attachment=encode_attachment(1, time.time_ns()))
+        pub.put(good[2], attachment=encode_attachment(2, time.time_ns()))
+        drain(session)
+        pub.delete()
+        drain(session)
+        out = procs.result(sub, timeout_s=30)
+    finally:
+        session.close()
+    c1 = out["cameras"]["cam1"]
+    assert c1["malformed"] == 2 and c1["packets"] == 3 and c1["events"] == 3000
+    assert c1["missing"] == 0 and c1["gaps"] == 0 and c1["restarts"] == 0 and c1["last_seq"] == 2
+    assert c1["archives"] == [str(tmp_path / "seq.mcap")] and not (tmp_path / "seq.1.mcap").exists()
+    err = procs.stderr(sub)
+    assert "restarted" not in err and "'EVT3'" in err and "lower case" in err
+    assert sum(len(c) for c in open_source(tmp_path / "seq.mcap")) == 3000

@@ -114,7 +114,7 @@ class PacketDecoder:
         self.counters = dict.fromkeys(evt3.COUNTER_NAMES, 0)
 
     def decode(self, packet: EventPacket):
-        enc = packet.encoding.lower()
+        enc = packet.encoding  # exact, as event_camera_codecs matches it: "EVT3" is not "evt3"
         if enc == "evt3":
             if packet.is_bigendian:
                 raise PacketError("evt3 packet marked big-endian: EVT3 words are little-endian")
@@ -136,4 +136,5 @@ class PacketDecoder:
                 return mono.decode(packet.events, packet.time_base, packet.is_bigendian)
             except ValueError as e:
                 raise PacketError(str(e)) from None
-        raise PacketError(f"unsupported event encoding {packet.encoding!r} (readable: {', '.join(ENCODINGS)})")
+        hint = "; encoding names are lower case, as in ROS 2's event_camera_codecs" if enc.lower() in ENCODINGS else ""
+        raise PacketError(f"unsupported event encoding {packet.encoding!r} (readable: {', '.join(ENCODINGS)}){hint}")
