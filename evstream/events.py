@@ -86,6 +86,10 @@ class EventChunk:
     t_end: int | None = None
 
     def __post_init__(self):
+        for name in ("t", "x", "y", "p", "cls", "label"):  # a 2-D field would pass the length check below
+            a = getattr(self, name)
+            if a is not None and np.ndim(a) != 1:
+                raise EventError(f"EventChunk: field {name!r} has shape {np.shape(a)}: one dimension expected")
         n = len(self.t)
         for name in ("x", "y", "p", "cls", "label"):
             a = getattr(self, name)

@@ -29,6 +29,8 @@ def open_source(uri: str | os.PathLike, **options):
         raise EventError(f"{path}: no such file")
     if os.path.isdir(path):
         raise EventError(f"{path}: is a directory, not a recording")
+    if not os.path.isfile(path):  # a FIFO, socket or device: opening one may block forever, seeking fails
+        raise EventError(f"{path}: not a regular file (a pipe, socket or device); save the stream to a file first")
     with open(path, "rb") as f:
         head = f.read(4096)
     if not head:

@@ -52,8 +52,8 @@ class DatSource(FileSource):
         self.body_offset = off + 2
         if self.record_bytes != 8:
             raise self.error(f"DAT event size {self.record_bytes} bytes is not supported (8 is)", off + 1)
-        try:
-            self.version = int(h.get("version", "2").split()[0])
+        try:  # "% Version " with no number is as wrong as "% Version two"
+            self.version = int((h.get("version", "2").split() or [""])[0])
         except ValueError:
             raise self.error(f"DAT header version {h['version']!r} is not a number") from None
         if self.version not in (1, 2):

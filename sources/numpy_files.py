@@ -11,6 +11,8 @@ Integer timestamps are µs, floating ones seconds (`time_unit=` overrides). Sens
 from __future__ import annotations
 
 import builtins
+import math
+import os
 import zipfile
 from collections.abc import Iterator
 
@@ -18,6 +20,7 @@ import numpy as np
 
 from evstream.events import EventError, Geometry
 
+from . import npy_stream
 from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit
 
 NAME = "NumPy .npy / .npz (structured or struct of arrays)"
@@ -55,7 +58,7 @@ class NumpySource(FileSource):
                     self._rows = (int(array.offset), array.strides[0])
             else:
                 self.format = "npz"
-                self._npz = np.load(self.path, allow_pickle=False)
+                self._npz = _Npz(self.path)
                 self._cols = self._from_npz(self._npz, columns)
         except EventError:
             raise
@@ -78,17 +81,22 @@ class NumpySource(FileSource):
     def _load_npy(self) -> np.ndarray:
         """The .npy memory-mapped; a file shorter than its header promises (np.load said only "mmap
         length is greater than file size") keeps its whole rows, with a warning naming the byte."""
-        with builtins.open(self.path, "rb") as f:
-            version = np.lib.format.read_magic(f)
-            if version not in ((1, 0), (2, 0)):  # 3.0 (UTF-8 field names): np.load's own checks
-                return np.load(self.path, mmap_mode="r", allow_pickle=False)
-            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-            shape, fortran, dtype = read(f)
-            start = f.tell()
+        with builtins.open(self.path, "rb") as f:  # our header parser: one-line errors, long headers too
+            head = f.read(12)
+            if head[6:7] in (b"\x02", b"\x03") and len(head) == 12:
+                head += f.read(min(int.from_bytes(head[8:12], "little"), npy_stream.MAX_HEADER_BYTES + 1))
+            else:
+                head += f.read(1 << 16)
+        try:
+            shape, fortran, dtype, start = npy_stream.parse_header(head)
+        except ValueError as e:
+            raise self.error(str(e)) from None
         row_bytes = dtype.itemsize * int(np.prod(shape[1:], dtype=np.int64))
         want = start + row_bytes * (shape[0] if shape else 1)
         if self.file_size >= want or not shape or fortran or row_bytes == 0:
-            return np.load(self.path, mmap_mode="r", allow_pickle=False)
+            if not shape or row_bytes == 0 or math.prod(shape) == 0:
+                return np.zeros(shape, dtype)
+            return np.memmap(self.path, dtype, "r", start, shape, order="F" if fortran else "C")
         rows = (self.file_size - start) // row_bytes
         self.warn(f"truncated: the header promises {shape[0]} rows ({want} bytes) but the file ends at byte "
                   f"{self.file_size}; the {rows} whole rows before byte {start + rows * row_bytes} are kept")
@@ -101,6 +109,8 @@ class NumpySource(FileSource):
             f = find_fields(a.dtype.names)
             if f is None:
                 raise self.error(f"structured array lacks t/x/y/p fields; has {list(a.dtype.names)}")
+            if a.ndim != 1:
+                raise self.error(f"structured array of shape {a.shape}: expected one dimension (an event per entry)")
             return {k: a[v] for k, v in f.items()}
         if a.ndim == 2 and 4 in a.shape:
             rows = a if a.shape[1] == 4 else a.T
@@ -115,18 +125,46 @@ class NumpySource(FileSource):
     def _from_npz(self, z, columns: str) -> dict:
         f = find_fields(z.files)
         if f is not None:
-            if "width" in z.files and "height" in z.files:
-                self.set_geometry(Geometry(int(z["width"]), int(z["height"])), "file (width/height)")
-            elif "sensor_size" in z.files:
-                s = np.asarray(z["sensor_size"]).ravel()
-                self.set_geometry(Geometry(int(s[0]), int(s[1])), "file (sensor_size)")
-            return {k: z[v] for k, v in f.items()}
+            try:
+                if "width" in z.files and "height" in z.files:
+                    w, h = (z.get(k, limit=64).ravel() for k in ("width", "height"))
+                    self.set_geometry(Geometry(int(w[0]), int(h[0])), "file (width/height)")
+                elif "sensor_size" in z.files:
+                    s = z.get("sensor_size", limit=64).ravel()
+                    self.set_geometry(Geometry(int(s[0]), int(s[1])), "file (sensor_size)")
+            except (IndexError, TypeError, ValueError, OverflowError) as e:
+                if isinstance(e, EventError):
+                    raise
+                raise self.error(f"sensor size members are not two integers: {e}") from None
+            cols = {k: z[v] for k, v in f.items()}
+            for k, a in cols.items():
+                if a.ndim != 1:
+                    raise self.error(f"array {f[k]!r} of shape {a.shape}: one value per event expected")
+            return cols
         if len(z.files) == 1:
             return self._from_array(z[z.files[0]], columns)
         raise self.error(f"no t/x/y/p arrays among {z.files}")
 
     def _blocks(self) -> Iterator[Block]:
         return self._column_blocks(self._cols, self.n_events, self.time_unit, self._rows)
+
+
+class _Npz:
+    """The `.npy` members of an `.npz`, each read bounded by what its bytes can hold (`npy_stream`)."""
+
+    def __init__(self, path: str):
+        self.path = path
+        with zipfile.ZipFile(path) as z:
+            self._infos = {i.filename[:-4]: i for i in z.infolist() if i.filename.endswith(".npy")}
+        self.files = list(self._infos)
+
+    def get(self, name: str, limit: int | None = None) -> np.ndarray:
+        info = self._infos[name]
+        m = npy_stream.Member(self.path, info, os.path.getsize(self.path))
+        return m.read(limit=info.file_size if limit is None else limit)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.get(name)
 
 
 def open(path, **options) -> NumpySource:  # noqa: A001 - the format-module interface
