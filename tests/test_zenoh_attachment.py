@@ -10,7 +10,7 @@ from evstream.sources.zenoh_sub import camera_of
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evstream.cli_live import packetize
+from evstream.cli.publish import packetize
 from evstream.codecs.attachment import (
     OURS,
     RMW_ZENOH,

@@ -1,0 +1,7 @@
+"""`python -m evstream.cli ...` = `evstream ...`."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,0 +1,88 @@
+"""`evstream archive`: clean a recording into an MCAP archive (ROS 2, Foxglove and Rerun open it)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from ..framing import options as framer_options
+from ..pipeline import build, paced
+from .common import (
+    Progress,
+    StopOnSignal,
+    UsageError,
+    add_pipeline_flags,
+    add_source_flags,
+    attach_framer,
+    check_numbers,
+    evstream_version,
+    not_the_input,
+    open_recording,
+    pipeline_from_args,
+    summary_line,
+)
+
+
+def cmd_archive(args) -> int:
+    """Clean a recording into an MCAP archive (EventPackets, noise per class, frames, provenance)."""
+    import signal
+
+    from evstream.sinks.mcap_sink import McapSink
+
+    if not args.out.endswith(".mcap"):
+        raise UsageError(f"{args.out}: the archive's name must end in .mcap")
+    check_numbers(args, at_least_zero=("speed",), positive=("packet_us", "flush_s"))
+    not_the_input(args.source, args.out, "")  # `archive A.mcap A.mcap` emptied A.mcap and exited 0
+    source = open_recording(args.source, args)
+    pipeline = pipeline_from_args(args, source)
+    attach_framer(pipeline, args)
+    if args.frames and pipeline.framer is None:
+        pipeline.framer = build("framer", {"kind": "fw"})
+    provenance = {"source": str(args.source), "source_format": getattr(source, "format", type(source).__name__),
+                  "width": source.geometry.width, "height": source.geometry.height,
+                  "pipeline": pipeline.describe(), "command": sys.argv[1:] or None, "evstream": evstream_version()}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
+                    frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
+                    packet_us=args.packet_us,
+                    flush_s=args.flush_s, metadata=provenance, geometry=source.geometry)
+    progress = Progress(source)
+    with StopOnSignal() as stop:
+        stats = pipeline.run(stop.chunks(paced(source, args.speed)), [sink], on_batch=progress)
+    progress.done()
+    summary = {**stats.as_dict(), "mcap": args.out, "packets": sink.packets, "frames_written": sink.frames_written,
+               "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
+    if args.json:
+        print(json.dumps(summary), flush=True)
+    else:
+        print(summary_line(stats))
+        print(f"wrote {args.out}: {sink.packets:,} event packets, {sink.frames_written:,} frames")
+    if stop.signum is not None:
+        print(f"evstream: interrupted by {signal.Signals(stop.signum).name}; {args.out} is complete up to there",
+              file=sys.stderr)
+        return 128 + int(stop.signum)
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("archive", help="clean a recording into an MCAP archive (ROS 2, Foxglove, Rerun open it)")
+    p.add_argument("source")
+    p.add_argument("out", metavar="OUT.mcap")
+    add_source_flags(p)
+    add_pipeline_flags(p)
+    p.add_argument("--keep-noise", action="store_true",
+                   help="also write the removed events, one topic per noise class (nothing is lost)")
+    p.add_argument("--frames", action="store_true", help="write frames (foxglove.RawImage); --framer picks (fw)")
+    p.add_argument("--frame-format", choices=["foxglove", "ros2"], default="foxglove",
+                   help="frames as foxglove.RawImage (protobuf) or sensor_msgs/Image (an all-ROS 2 file)")
+    p.add_argument("--points", action="store_true", help="write X-Y-T point clouds (foxglove.PointCloud)")
+    p.add_argument("--camera", default="camera", help="topic prefix: /CAMERA/events ... (default camera)")
+    p.add_argument("--encoding", choices=["evt3", "mono"], default="evt3", help="EventPacket encoding")
+    p.add_argument("--packet-us", type=int, default=10_000, help="event time per packet (default 10000)")
+    p.add_argument("--flush-s", type=float, default=1.0,
+                   help="close a chunk at least this often: what a crash can lose (default 1 s)")
+    p.add_argument("--speed", type=float, default=0.0, help="1 = real time, 0 = as fast as possible")
+    p.add_argument("--json", action="store_true", help="print run statistics as JSON")
+    framer_options.add_framer_flags(p)
+    p.set_defaults(func=cmd_archive)

@@ -1,0 +1,197 @@
+"""What the commands share: the usage error, flags, reading a recording, progress and signal handling.
+
+Nothing here imports a command module; every command module imports from here.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+from ..events import NoiseClass
+from ..framing import options as framer_options
+from ..pipeline import Pipeline, RunStats, build, kinds
+
+
+class UsageError(Exception):
+    """A command line that cannot work (exit code 2)."""
+
+
+def open_recording(path: str, args=None):
+    from evstream.sources import open_source
+
+    options = {}
+    if getattr(args, "geometry", None):
+        options["geometry"] = geometry_flag(args.geometry)
+    if getattr(args, "timestamps", None):
+        options["timestamps"] = args.timestamps
+    return open_source(path, **options)
+
+
+def geometry_flag(text: str):
+    """`--geometry WxH` as a Geometry; a bad one is a usage error naming what was typed
+    (`--geometry 0x0: Geometry.width must be ...`, not `--Geometry.width ...`)."""
+    from evstream.sources._base import as_geometry
+
+    try:
+        return as_geometry(text)
+    except ValueError as e:
+        raise UsageError(f"--geometry {text}: {str(e).removeprefix(f'geometry {text!r}: ')}") from None
+
+
+def not_the_input(source: str, out, flag: str) -> None:
+    """An output that is the input recording would destroy it before (or while) it is read."""
+    if out and os.path.exists(out) and os.path.exists(source) and os.path.samefile(source, out):
+        raise UsageError(f"{flag}{out}: that is the input recording; writing there would destroy it")
+
+
+def check_numbers(args, *, at_least_zero=(), positive=()) -> None:
+    """Flag values that cannot work are usage errors (exit 2), named as typed: `--speed -1: must be >= 0`.
+    NaN and infinity are refused too (`--speed nan` used to replay as fast as possible)."""
+    for names, ok, rule in ((at_least_zero, lambda v: v >= 0, ">= 0"), (positive, lambda v: v > 0, "positive")):
+        for name in names:
+            v = getattr(args, name, None)
+            if v is not None and not (math.isfinite(v) and ok(v)):
+                raise UsageError(f"--{name.replace('_', '-')} {v:g}: must be {rule} (a finite number)")
+
+
+def add_source_flags(p) -> None:
+    p.add_argument("--geometry", metavar="WxH", help="sensor size, overriding the file's")
+    p.add_argument("--timestamps", choices=["error", "sort", "drop"],
+                   help="what to do with timestamps that go back (default: the format's)")
+
+
+def add_pipeline_flags(p) -> None:
+    p.add_argument("--denoise", metavar="NAME", help="denoise stage (none, truth, ...); default: the paper's")
+    p.add_argument("--pipeline", metavar="FILE.toml", help="pipeline description (overrides --denoise)")
+
+
+def pipeline_from_args(args, source) -> Pipeline:
+    if getattr(args, "pipeline", None):
+        return Pipeline.from_toml(args.pipeline)
+    name = args.denoise or "paper"
+    if name == "none":
+        return Pipeline([])
+    if name not in kinds("stage"):
+        raise UsageError(f"--denoise {name}: unknown; choose from none, {', '.join(kinds('stage'))}")
+    return Pipeline([build("stage", {"kind": name})])
+
+
+def attach_framer(pipeline: Pipeline, args) -> None:
+    """Set the pipeline's framer from `--framer` and its parameter flags (a TOML framer stays otherwise)."""
+    try:
+        framers = framer_options.framers_from_args(args)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if len(framers) > 1:
+        raise UsageError(f"--framer {args.framer}: this command takes one framer")
+    if framers:
+        pipeline.framer = framers[0]
+
+
+def event_rate(hz: float) -> str:
+    """An event rate with the digits that say something: '5.4 M ev/s', '147 k ev/s', '512 ev/s'
+    (a fixed '{hz / 1e6:.1f} M' printed '0.0 M ev/s' for every run of a small recording)."""
+    if hz >= 1e6:
+        return f"{hz / 1e6:.1f} M ev/s"
+    if hz >= 1e3:
+        return f"{hz / 1e3:.0f} k ev/s"
+    return f"{hz:.0f} ev/s"
+
+
+class Progress:
+    """One status line on a terminal (percent of the file where the reader knows it, events, events/s,
+    noise fraction); silent when piped."""
+
+    def __init__(self, source=None, stream=None):
+        self.source = source
+        self.stream = sys.stderr if stream is None else stream  # at call time: stderr may have been swapped
+        self.enabled = self.stream.isatty()
+        self._last = 0.0
+
+    def __call__(self, batch) -> None:
+        now = time.monotonic()
+        if not self.enabled or now - self._last < 0.25:
+            return
+        self._last = now
+        self.stream.write("\r" + self._line(batch.stats) + "\x1b[K")
+        self.stream.flush()
+
+    def _line(self, s: RunStats) -> str:
+        noise = 1 - s.per_class[NoiseClass.SIGNAL] / s.events_in if s.events_in else 0.0
+        fraction = getattr(self.source, "fraction_read", None)
+        done = f"{100 * fraction:3.0f}%  " if fraction is not None else ""
+        return f"{done}{s.events_in:,} events  {event_rate(s.throughput_hz)}  noise {100 * noise:.1f}%"
+
+    def done(self) -> None:
+        if self.enabled:
+            self.stream.write("\r\x1b[K")
+            self.stream.flush()
+
+
+def summary_line(s: RunStats) -> str:
+    pc = s.per_class
+    wall = f"{s.wall_s:.2f}" if s.wall_s >= 1 else f"{s.wall_s:.3g}"  # '0.01 s' and '1.2 M ev/s' disagreed
+    return (f"{s.events_in:,} events in {wall} s ({event_rate(s.throughput_hz)}): "
+            f"signal {pc[0]:,}, background {pc[1]:,}, hot pixel {pc[2]:,}")
+
+
+class StopOnSignal:
+    """SIGINT/SIGTERM stop the stream after the chunk in progress, so sinks close their files properly;
+    a second signal interrupts at once (sinks are still closed by `Pipeline.run`)."""
+
+    def __init__(self):
+        self.signum = None
+        self._old = {}
+
+    def __enter__(self):
+        import signal
+
+        for s in (signal.SIGINT, signal.SIGTERM):
+            self._old[s] = signal.signal(s, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        for s, handler in self._old.items():
+            signal.signal(s, handler)
+
+    def _handle(self, signum, frame):
+        if self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
+
+    def chunks(self, source):
+        for chunk in source:
+            yield chunk
+            if self.signum is not None:
+                return
+
+
+def rerun_command() -> str:
+    """How to start the Rerun viewer from this shell: `rerun` when it is on PATH, else the one installed
+    beside this Python (after `make demo`, `.venv/bin/rerun`: the venv is not activated)."""
+    import shutil
+
+    if shutil.which("rerun"):
+        return "rerun"
+    beside = Path(sys.executable).parent / "rerun"
+    if not beside.exists():
+        return "rerun"
+    try:
+        return os.path.relpath(beside) if not os.path.relpath(beside).startswith("..") else str(beside)
+    except ValueError:  # another drive (Windows)
+        return str(beside)
+
+
+def evstream_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("evstream")
+    except Exception:  # not installed (running from a source tree)
+        return "unknown"

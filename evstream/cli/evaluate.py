@@ -1,0 +1,138 @@
+"""`evstream synth` and `evstream eval`: scenes with ground truth, and every denoiser scored on them."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from .. import noise, synth
+from ..events import EventError, Geometry
+from .common import UsageError, check_numbers, open_recording
+
+
+def cmd_synth(args) -> int:
+    from evstream.sources import native
+
+    geometry = Geometry(args.width, args.height)
+    events = synth.scene(args.scene, geometry, duration_us=int(args.duration_ms * 1000), seed=args.seed)
+    meta = {"scene": args.scene, "seed": args.seed, "duration_ms": args.duration_ms,
+            "generator": "evstream synth"}
+    if args.noise_ratio is not None or args.ba_rate_hz is not None:
+        spec = noise.NoiseSpec(noise_ratio=args.noise_ratio, ba_rate_hz=args.ba_rate_hz,
+                               hot_pixels=args.hot_pixels, hot_share=args.hot_share)
+        events = noise.inject(events, spec, seed=args.seed + 1, t_start_us=0,
+                              t_stop_us=int(args.duration_ms * 1000))
+        meta["noise"] = {k: v for k, v in vars(spec).items()}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    native.save(args.out, events, meta)
+    counts = events.class_counts("label")
+    print(f"wrote {args.out}: {len(events):,} events ({counts[0]:,} signal, {counts[1]:,} background, "
+          f"{counts[2]:,} hot pixel)")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from .. import evaluation
+
+    check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
+    for flag, out in (("--json", args.json), ("--roc", args.roc)):  # before minutes of work, not after
+        if out:
+            try:
+                if not Path(out).parent.exists():
+                    Path(out).parent.mkdir(parents=True)
+                existed = Path(out).exists()
+                with open(out, "a"):
+                    pass
+                if not existed:  # only a probe: no empty file left behind if the run fails
+                    Path(out).unlink()
+            except OSError as e:
+                raise OSError(f"{flag} {out}: cannot write there: {e.strerror or e}") from None
+    paths = list(args.recordings) or sorted(str(p) for p in Path("recordings").glob("*.npz"))
+    if args.real:
+        paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")
+    recordings = {}
+    seen = set()  # (events, first t, last t): a converted twin of a file already read is skipped
+    for path in paths:
+        try:
+            events = _read_all(path)
+        except (EventError, OSError, ValueError) as e:
+            print(f"evstream eval: skipping {path}: {e}", file=sys.stderr)
+            continue
+        duration_s = events.duration_us * 1e-6
+        if duration_s < args.min_duration_s:
+            print(f"evstream eval: skipping {path}: {duration_s:.3f} s is shorter than --min-duration-s",
+                  file=sys.stderr)
+            continue
+        signature = (len(events), int(events.t[0]), int(events.t[-1]))
+        if signature in seen:
+            print(f"evstream eval: skipping {path}: same events as a recording already read", file=sys.stderr)
+            continue
+        seen.add(signature)
+        recordings[Path(path).stem] = events
+    if not recordings:
+        raise UsageError("no recording to evaluate")
+    methods = args.methods.split(",") if args.methods else list(evaluation.METHODS)
+    conditions = [evaluation.Condition(noise_ratio=r) for r in args.ratios] + [
+        evaluation.Condition(ba_rate_hz=r) for r in args.rates_hz]
+    curves: dict = {}
+    say = (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr)) if sys.stderr.isatty() else None
+    rows = evaluation.run(recordings, conditions, range(args.seeds), methods, tune=args.tune,
+                          progress=say, curves=curves)
+    if say:
+        print(file=sys.stderr)
+    print(evaluation.report(rows, tune=args.tune))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(evaluation.as_json_rows(rows), indent=1))
+        print(f"wrote {args.json} ({len(rows)} rows)")
+    if args.roc:
+        try:
+            names = [c.name for c in conditions]
+            condition = args.roc_condition or ("100%" if "100%" in names else names[0])
+            evaluation.plot_roc(curves, condition, args.roc)
+            print(f"wrote {args.roc}")
+        except ImportError:
+            print("evstream eval: matplotlib is not installed; no ROC plot (pip install matplotlib)",
+                  file=sys.stderr)
+    return 0
+
+
+def _read_all(path: str):
+    from ..events import concat
+
+    source = open_recording(path)
+    return concat(list(source), source.geometry)
+
+
+def add_synth_parser(sub) -> None:
+    p = sub.add_parser("synth", help="simulate a scene with ground-truth labels")
+    p.add_argument("scene", choices=sorted(synth.SCENES))
+    p.add_argument("out", help="output .npz (native format)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration-ms", type=float, default=1000.0)
+    p.add_argument("--width", type=int, default=synth.DEFAULT_GEOMETRY.width)
+    p.add_argument("--height", type=int, default=synth.DEFAULT_GEOMETRY.height)
+    p.add_argument("--noise-ratio", type=float, help="noise events per signal event (0.5 = 50 %%)")
+    p.add_argument("--ba-rate-hz", type=float, help="background activity per pixel (instead of a ratio)")
+    p.add_argument("--hot-pixels", type=int, default=0, help="hot pixel count (with --ba-rate-hz)")
+    p.add_argument("--hot-share", type=float, default=0.1, help="share of noise from hot pixels (ratio)")
+    p.set_defaults(func=cmd_synth)
+
+
+def add_eval_parser(sub) -> None:
+    p = sub.add_parser("eval", help="inject labelled noise, run every denoiser, print the paper's tables")
+    p.add_argument("recordings", nargs="*", help="recordings (default: recordings/*.npz)")
+    p.add_argument("--real", metavar="DIR", help="also every readable recording in DIR")
+    p.add_argument("--methods", help="comma-separated (default: all)")
+    p.add_argument("--ratios", type=float, nargs="*", default=[0.1, 0.2, 0.5, 1.0, 1.5, 2.0],
+                   help="noise ratios (0.5 = 50 %%)")
+    p.add_argument("--rates-hz", type=float, nargs="*", default=[1.0, 3.0, 5.0],
+                   help="background activity rates, Hz/pixel")
+    p.add_argument("--seeds", type=int, default=2, help="noise seeds per condition")
+    p.add_argument("--tune", action="store_true", help="tune each threshold on the first half, report the second")
+    p.add_argument("--min-duration-s", type=float, default=0.25, help="skip shorter recordings")
+    p.add_argument("--json", metavar="FILE", help="write every result row as JSON")
+    p.add_argument("--roc", metavar="FILE.png", help="plot ROC curves")
+    p.add_argument("--roc-condition", help="noise condition of the ROC plot, e.g. 100%% or 3Hz (default 100%%)")
+    p.set_defaults(func=cmd_eval)

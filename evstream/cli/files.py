@@ -1,0 +1,124 @@
+"""`evstream info` and `evstream convert`: describe a recording, convert it to another format."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..events import NoiseClass
+from .common import UsageError, add_source_flags, open_recording
+
+
+def cmd_info(args) -> int:
+    source = open_recording(args.source, args)
+    n = 0
+    on = 0
+    t_first = t_last = None
+    labels = np.zeros(3, np.int64)
+    has_labels = True
+    for chunk in source:
+        if not len(chunk):
+            continue
+        n += len(chunk)
+        on += int(chunk.p.sum())
+        t_first = int(chunk.t[0]) if t_first is None else t_first
+        t_last = int(chunk.t[-1])
+        if chunk.label is None:
+            has_labels = False
+        else:
+            labels += chunk.class_counts("label")
+    duration = (t_last - t_first) if n else 0
+    out = {
+        "path": args.source,
+        "format": getattr(source, "format", type(source).__name__),
+        "width": source.geometry.width,
+        "height": source.geometry.height,
+        "events": n,
+        "t_first_us": t_first,
+        "t_last_us": t_last,
+        "duration_us": duration,
+        "rate_hz": n / (duration * 1e-6) if duration > 0 else 0.0,
+        "on_fraction": on / n if n else 0.0,
+        "labels": {c.name.lower(): int(labels[c]) for c in NoiseClass} if has_labels and n else None,
+        "source": source.info() if hasattr(source, "info") else {},  # reader details, after the read
+    }
+    if args.json:
+        print(json.dumps(out, default=str))
+        return 0
+    print(f"{out['path']}")
+    print(f"  format     {out['format']}")
+    where = out["source"].get("geometry_from")
+    print(f"  geometry   {out['width']}x{out['height']}" + (f"  (from {where})" if where else ""))
+    print(f"  events     {n:,}")
+    print(f"  duration   {duration / 1e6:.6f} s  ({t_first} .. {t_last} µs)")
+    print(f"  rate       {out['rate_hz'] / 1e3:,.1f} k events/s")
+    print(f"  ON         {100 * out['on_fraction']:.1f} %")
+    if out["labels"]:
+        print("  labels     " + ", ".join(f"{k} {v:,}" for k, v in out["labels"].items()))
+    skipped = {k: v for k, v in out["source"].get("counters", {}).items() if v}
+    if out["source"].get("dropped"):
+        skipped["dropped (timestamps back)"] = out["source"]["dropped"]
+    if skipped:
+        print("  skipped    " + ", ".join(f"{k} {v:,}" for k, v in skipped.items()))
+    return 0
+
+
+def cmd_convert(args) -> int:
+    from evstream.sources import hdf5, native, prophesee_raw
+
+    out = Path(args.out)
+    kind = out.suffix.lower()
+    if kind not in (".npz", ".raw", ".h5", ".hdf5"):
+        raise UsageError(f"{args.out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
+    if out.resolve() == Path(args.source).resolve():
+        raise UsageError("convert: the output would overwrite the input")
+    source = open_recording(args.source, args)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if kind == ".raw":  # streamed: into a side file, renamed once whole, so a failure leaves no valid-looking
+        part = out.with_name(out.name + ".part")  # half recording (nor clobbers an older OUT)
+        try:
+            n = prophesee_raw.save(part, source, source.geometry, version=f"evt{args.evt}")
+            os.replace(part, out)
+        finally:
+            part.unlink(missing_ok=True)
+        fmt = f"evt{args.evt}"
+    else:
+        from ..events import concat
+
+        events = concat(list(source), source.geometry)  # these writers take whole arrays
+        n = len(events)
+        if kind == ".npz":
+            native.save(out, events, {"converted_from": str(args.source),
+                                      "source_format": getattr(source, "format", "?")})
+            fmt = "native"
+        else:
+            hdf5.save(out, events)
+            fmt = "hdf5"
+    summary = {"source": args.source, "out": str(out), "format": fmt, "events": n,
+               "width": source.geometry.width, "height": source.geometry.height}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {out} ({fmt}, {source.geometry}): {n:,} events")
+    return 0
+
+
+def add_info_parser(sub) -> None:
+    p = sub.add_parser("info", help="describe a recording")
+    p.add_argument("source")
+    add_source_flags(p)
+    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    p.set_defaults(func=cmd_info)
+
+
+def add_convert_parser(sub) -> None:
+    p = sub.add_parser("convert", help="convert a recording: OUT.npz (native), OUT.raw (EVT3), OUT.h5")
+    p.add_argument("source")
+    p.add_argument("out")
+    add_source_flags(p)
+    p.add_argument("--evt", choices=["3", "2"], default="3", help="EVT version of a .raw output")
+    p.add_argument("--json", action="store_true", help="print what was written as JSON")
+    p.set_defaults(func=cmd_convert)

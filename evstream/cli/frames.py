@@ -1,0 +1,78 @@
+"""`evstream frames`: frame a recording with one or more framers; frame statistics, PNGs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..events import NoiseClass
+from ..framing import options as framer_options
+from ..framing.render import STYLES
+from ..pipeline import build
+from .common import Progress, UsageError, add_pipeline_flags, open_recording, pipeline_from_args
+
+
+def cmd_frames(args) -> int:
+    """Frame a recording with one or more framers; print the paper's frame statistics, write PNGs."""
+    from ..framing.render import PngWriter
+    from ..framing.stats import FrameStats
+
+    try:
+        kinds_ = framer_options.framer_kinds(args)
+        framer_options.framers_from_args(args)  # validate every parameter before reading anything
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if not kinds_:
+        raise UsageError("--framer none: name a framer (fw, fn, oa, adaptive)")
+    rows = []
+    for kind in kinds_:
+        source = open_recording(args.source, args)
+        pipeline = pipeline_from_args(args, source)
+        pipeline.framer = build("framer", framer_options.framer_spec(kind, args))
+        fstats = FrameStats()  # fed per chunk: frames the end of the stream cut short are left out
+        sinks = []
+        writer = None
+        if args.out:
+            out_dir = Path(args.out) / kind if len(kinds_) > 1 else Path(args.out)
+            writer = PngWriter(out_dir, style=args.style)
+            sinks.append(writer)
+        progress = Progress(source)
+
+        def on_batch(batch, fstats=fstats, progress=progress):
+            fstats.add_frames(batch.frames)
+            progress(batch)
+
+        stats = pipeline.run(source, sinks, on_batch=on_batch)
+        progress.done()
+        fstats.duration_us = stats.duration_us
+        rows.append({"framer": pipeline.describe()["framer"], **fstats.as_dict(),
+                     "frames_at_end": stats.frames - fstats.frames,
+                     "events_in": stats.events_in, "events_signal": int(stats.per_class[NoiseClass.SIGNAL]),
+                     "denoise": [st["kind"] for st in pipeline.describe()["stages"]],
+                     "png_dir": str(writer.out_dir) if writer else None,
+                     "png_written": writer.written if writer else 0})
+    if args.json:
+        print(json.dumps({"source": args.source, "results": rows}))
+        return 0
+    print(f"{args.source}: {rows[0]['events_in']:,} events over {rows[0]['duration_us'] / 1e6:.3f} s, "
+          f"denoise: {', '.join(rows[0]['denoise']) or 'none'}")
+    print("frames closed by the end of the stream (cut short) are written but not counted")
+    print(f"{'framer':<10} {'frames':>7} {'rate (fps)':>11} {'mean events':>12} {'variance':>16} {'empty':>6}")
+    for r in rows:
+        print(f"{r['framer']['kind']:<10} {r['frames']:>7,} {r['frame_rate_hz']:>11.2f} {r['mean_events']:>12,.2f} "
+              f"{r['variance_events']:>16,.2f} {r['empty_frames']:>6,}")
+        if r["png_dir"]:
+            print(f"  wrote {r['png_written']:,} PNG frames to {r['png_dir']}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("frames", help="frame a recording; print frame rate and events per frame, write PNGs")
+    p.add_argument("source")
+    add_pipeline_flags(p)
+    framer_options.add_framer_flags(p, default="adaptive", several=True)
+    p.add_argument("--out", metavar="DIR", help="write every frame as a PNG into DIR (DIR/<framer> for several)")
+    p.add_argument("--style", default="paper", choices=STYLES,
+                   help="PNG rendering: paper (gray, ON white, OFF black), signed, or a colour map")
+    p.add_argument("--json", action="store_true", help="print the statistics as JSON")
+    p.set_defaults(func=cmd_frames)

@@ -1,0 +1,109 @@
+"""`evstream publish`: play a recording as a live camera (EventPackets over Zenoh, paced by --speed)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import numpy as np
+
+from ..events import EventChunk, concat
+from ..pipeline import paced
+from .common import StopOnSignal, UsageError, add_source_flags, check_numbers, event_rate, open_recording
+from .live import DEFAULT_KEY, add_zenoh_flags, check_endpoints, session_from_args
+
+
+def packetize(chunks, packet_us: int):
+    """Re-cut a stream into packets, one per cell of an event-time grid anchored at t = 0."""
+    pending: list[EventChunk] = []
+    cell = None
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        cells = chunk.t // packet_us
+        edges = [0, *(np.flatnonzero(np.diff(cells)) + 1).tolist(), len(chunk)]
+        for a, b in zip(edges[:-1], edges[1:]):
+            c = int(cells[a])
+            if cell is not None and c != cell and pending:
+                yield concat(pending, chunk.geometry)
+                pending = []
+            cell = c
+            pending.append(chunk[a:b])
+    if pending:
+        yield concat(pending, pending[0].geometry)
+
+
+def cmd_publish(args) -> int:
+    import signal
+
+    from evstream.sinks.zenoh_pub import PacketPublisher, linger
+    from evstream.sources.zenoh_session import drain
+    from evstream.sources.zenoh_sub import camera_of
+
+
+    check_numbers(args, at_least_zero=("speed", "wait_subscribers", "drain_s"))
+    if any(c in args.key for c in "*$?#"):
+        raise UsageError(f"--key {args.key}: a publisher needs a concrete key, no wildcards")
+    if args.packet_us <= 0:
+        raise UsageError(f"--packet-us {args.packet_us}: must be positive")
+    check_endpoints(args)
+    source = open_recording(args.source, args)
+    g = source.geometry
+    session = session_from_args(args)
+    try:
+        pub = PacketPublisher(session, args.key, congestion=args.congestion, frame_id=camera_of(args.key))
+        if args.wait_subscribers > 0 and not pub.wait_matching(args.wait_subscribers):
+            print(f"evstream: warning: no subscriber on {args.key} after {args.wait_subscribers:g} s; "
+                  "publishing anyway", file=sys.stderr)
+        t0 = time.perf_counter()
+        unmatched_packets = unmatched_events = 0  # put while no subscriber matched: they went to no one
+        with StopOnSignal() as stop:
+            for packet in stop.chunks(paced(packetize(source, args.packet_us), args.speed)):
+                matched, before = pub.matching, pub.packets
+                pub.put_events(packet.t, packet.x, packet.y, packet.p, width=g.width, height=g.height)
+                if not matched:
+                    unmatched_packets += pub.packets - before
+                    unmatched_events += len(packet)
+        wall = time.perf_counter() - t0
+        pub.end()
+        drain(session, args.drain_s)
+        if not linger([pub], args.drain_s) and pub.matching:
+            print(f"evstream: note: subscribers still there after --drain-s {args.drain_s:g}; closing",
+                  file=sys.stderr)
+        pub.close()
+    finally:
+        session.close()
+    summary = {"key": args.key, "packets": pub.packets, "events": pub.events, "bytes": pub.bytes,
+               "unmatched_packets": unmatched_packets, "unmatched_events": unmatched_events,
+               "wall_s": wall, "events_per_s": pub.events / wall if wall > 0 else 0.0,
+               "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
+    if unmatched_packets:  # a router or the subscribers that went away must not look like a delivery
+        print(f"evstream: warning: {unmatched_packets:,} of {pub.packets:,} packets ({unmatched_events:,} events) "
+              f"went out while no subscriber matched {args.key} (none yet, or the subscribers or the router "
+              "went away): nobody received them", file=sys.stderr)
+    if args.json:
+        print(json.dumps(summary), flush=True)
+    else:
+        print(f"published {pub.events:,} events in {pub.packets:,} packets on {args.key} "
+              f"({event_rate(summary['events_per_s'])})")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("publish", help="play a recording as a live camera over Zenoh")
+    p.add_argument("source")
+    add_source_flags(p)
+    p.add_argument("--key", default=DEFAULT_KEY, help=f"Zenoh key (default {DEFAULT_KEY})")
+    p.add_argument("--speed", type=float, default=1.0, help="1 = real time (default), 0 = as fast as possible")
+    p.add_argument("--packet-us", type=int, default=10_000, help="event time per packet (default 10000)")
+    p.add_argument("--congestion", choices=["block", "drop"], default="block",
+                   help="when the network is full: block (default, no loss) or drop")
+    p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+                   help="wait up to S seconds for a subscriber before publishing")
+    p.add_argument("--drain-s", type=float, default=10.0, metavar="S",
+                   help="at the end, wait up to S seconds for subscribers to take the stream and leave "
+                        "(default 10)")
+    add_zenoh_flags(p)
+    p.add_argument("--json", action="store_true", help="print what was published as JSON")
+    p.set_defaults(func=cmd_publish)

@@ -1,0 +1,164 @@
+"""`evstream replay`: a recording through a pipeline into the Rerun viewer (or an .rrd file), paced."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..framing import options as framer_options
+from ..pipeline import paced
+from .common import (
+    Progress,
+    StopOnSignal,
+    UsageError,
+    add_pipeline_flags,
+    add_source_flags,
+    attach_framer,
+    check_numbers,
+    not_the_input,
+    open_recording,
+    pipeline_from_args,
+    rerun_command,
+    summary_line,
+)
+
+
+class LagMeter:
+    """Real-time lag of a paced replay: wall-clock time from when a chunk was due (its last event's
+    time at `speed`, counted from when the first chunk left the source) until every sink had it."""
+
+    def __init__(self, speed: float):
+        self.speed = speed
+        self.t0_event: int | None = None
+        self.t0_wall = 0.0
+        self.lags_s: list[float] = []
+
+    def watch(self, chunks):
+        for chunk in chunks:
+            if self.t0_event is None and len(chunk):
+                self.t0_event, self.t0_wall = int(chunk.t[0]), time.monotonic()
+            yield chunk
+
+    def __call__(self, batch) -> None:
+        if self.speed > 0 and len(batch.events) and self.t0_event is not None:
+            due = self.t0_wall + (int(batch.events.t[-1]) - self.t0_event) * 1e-6 / self.speed
+            self.lags_s.append(time.monotonic() - due)
+
+    def as_dict(self) -> dict:
+        if not self.lags_s:
+            return {}
+        lags = np.asarray(self.lags_s) * 1e3
+        return {"lag_median_ms": float(np.median(lags)), "lag_mean_ms": float(lags.mean()),
+                "lag_p99_ms": float(np.percentile(lags, 99)),
+                "lag_max_ms": float(lags.max()), "lag_end_ms": float(lags[-1])}
+
+
+def cmd_replay(args) -> int:
+    import signal
+
+    from evstream.sinks.rerun_sink import RerunSink
+    from evstream.sinks.rerun_viewer import has_display, open_output
+
+    outputs = [o for o in ("save", "spawn", "serve", "viewer") if getattr(args, o)]
+    if len(outputs) > 1:
+        raise UsageError(f"--{outputs[0]} and --{outputs[1]}: choose one place for the Rerun output")
+    if args.point_budget < 0:
+        raise UsageError(f"--point-budget {args.point_budget}: must be >= 0 (0 = every event)")
+    check_numbers(args, at_least_zero=("speed",), positive=("slab_ms",))
+    not_the_input(args.source, args.save, "--save ")
+    source = open_recording(args.source, args)
+    pipeline = pipeline_from_args(args, source)
+    attach_framer(pipeline, args)
+    save, spawn = args.save, args.spawn
+    if not outputs:  # a desktop viewer where there is a display, else a file
+        if has_display():
+            spawn = True
+        else:
+            save = str(Path("out") / (Path(args.source).stem + ".rrd"))
+    out = open_output(save=save, spawn=spawn, serve=args.serve, connect=args.viewer, bind=args.bind,
+                      memory_limit=args.memory_limit)
+    try:
+        sink = RerunSink(out.rec, geometry=source.geometry, framer=getattr(pipeline.framer, "kind", None),
+                         point_budget_hz=args.point_budget or None, slab_ms=args.slab_ms,
+                         play_state=None if out.mode == "save" else "following")
+        if out.web_url:
+            print(f"web viewer: {out.web_url}", flush=True)
+        lag = LagMeter(args.speed)
+        progress = Progress(source)
+
+        def on_batch(batch):
+            lag(batch)
+            progress(batch)
+
+        with StopOnSignal() as stop:  # Ctrl-C: stop after the chunk in progress, then the summary as usual
+            stats = pipeline.run(stop.chunks(paced(lag.watch(source), args.speed)), [sink], on_batch=on_batch)
+        progress.done()
+        out.finish()
+        stopped_by = signal.Signals(stop.signum).name if stop.signum else None
+        summary = {**stats.as_dict(), "points_logged": sink.points_logged, "points_dropped": sink.points_dropped,
+                   **lag.as_dict(), "output": out.mode, "rrd": save, "grpc_url": out.grpc_url,
+                   "web_url": out.web_url, "stopped_by": stopped_by}
+        if args.json:
+            print(json.dumps(summary), flush=True)
+        else:
+            print(summary_line(stats))
+            shown = sink.points_logged + sink.points_dropped
+            if sink.points_dropped:
+                burst = int(sink.budget.capacity)  # saved-up points: a short recording draws more than rate x time
+                print(f"3D view: {sink.points_logged:,} of {shown:,} events drawn, {sink.points_dropped:,} "
+                      f"dropped by the point budget ({args.point_budget:,}/s of event time, bursts up to "
+                      f"{burst:,}); frames and stats use all")
+            if lag.lags_s:
+                d = lag.as_dict()
+                print(f"real-time lag: median {d['lag_median_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "
+                      f"max {d['lag_max_ms']:.1f} ms, at the end {d['lag_end_ms']:.1f} ms")
+            if save:
+                print(f"wrote {save} — open it with:  {rerun_command()} {save}   "
+                      "(or: evstream replay --spawn / --serve)")
+        sys.stdout.flush()
+        if stopped_by:
+            where = f"; {save} holds the events up to there" if save else ""
+            print(f"evstream: interrupted by {stopped_by}{where}", file=sys.stderr)
+            return 128 + int(stop.signum)
+        if out.mode == "serve":
+            print(f"serving {out.web_url} until Ctrl-C", file=sys.stderr, flush=True)
+
+            def _stop(signum, frame):
+                raise KeyboardInterrupt
+
+            signal.signal(signal.SIGTERM, _stop)  # a service manager's stop ends the server cleanly too
+            try:
+                out.process.wait()
+            except KeyboardInterrupt:
+                pass
+    finally:
+        out.stop()
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("replay", help="replay a recording through a pipeline into the Rerun viewer")
+    p.add_argument("source")
+    add_source_flags(p)
+    add_pipeline_flags(p)
+    p.add_argument("--speed", type=float, default=0.0, help="1 = real time, 0 = as fast as possible")
+    p.add_argument("--save", metavar="OUT.rrd", help="write a Rerun recording")
+    p.add_argument("--spawn", action="store_true", help="open the desktop viewer (default with a display)")
+    p.add_argument("--serve", action="store_true",
+                   help="serve the web viewer (for a remote or headless machine) until Ctrl-C")
+    p.add_argument("--viewer", "--connect", dest="viewer", metavar="URL",
+                   help="log to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
+    p.add_argument("--bind", metavar="ADDR", default="127.0.0.1",
+                   help="address --serve and --spawn listen on (default 127.0.0.1; 0.0.0.0 = all interfaces)")
+    p.add_argument("--memory-limit", metavar="SIZE", default="25%",
+                   help="viewer memory (--spawn) or server buffer (--serve), e.g. 2GiB or 25%% (default)")
+    p.add_argument("--point-budget", type=int, default=1_000_000, metavar="N",
+                   help="most 3D points per second of event time (0 = every event); frames and stats use all")
+    p.add_argument("--slab-ms", type=float, default=100.0, help="depth of the 3D view's time slab")
+    p.add_argument("--json", action="store_true", help="print run statistics as JSON")
+    framer_options.add_framer_flags(p)
+    p.set_defaults(func=cmd_replay)
