@@ -109,6 +109,8 @@ def test_density_kernel_matches_brute_force(seed, n, params):
     scores = np.concatenate([sc for _, sc in got]) if got else np.zeros(0)
     assert np.array_equal(codes == NoiseClass.SIGNAL, keep)
     assert np.allclose(scores, score)
+    _check_unscored_variants(lambda: DensityFilter(**params), s, seed, lambda sub: density_reference(sub, f)[0],
+                             NoiseClass.BACKGROUND)
     if params["mode"] == "relative":  # kept iff the score reaches rho_rel (and N >= 1)
         assert np.array_equal(keep, (score >= params["rho_rel"] - 1e-9) & (score > 0))
 
@@ -142,6 +144,26 @@ def test_dc_kernel_matches_brute_force(seed, n, params):
     scores = np.concatenate([sc for _, sc in got]) if got else np.zeros(0)
     assert np.array_equal(codes == NoiseClass.HOT_PIXEL, hot)
     assert np.allclose(scores, score)
+    _check_unscored_variants(lambda: TimeSeriesFilter(**params), s, seed, lambda sub: ~dc_reference(sub, f)[0],
+                             NoiseClass.HOT_PIXEL)
+
+
+def _check_unscored_variants(make, s, seed, keep_of, noise_code):
+    """The kernel variants compiled without the score (`classify`, `stage(chunk)`) and for chunks where
+    an earlier stage already classed some events noise, each against the brute-force reference
+    (`keep_of(sub-stream)` -> kept mask): every compiled variant is compared, not only the scored one."""
+    bounds = random_bounds(seed, len(s))
+    f = make()
+    plain = [f.classify(c) for c in split(s, bounds)]
+    plain = np.concatenate(plain) if plain else np.zeros(0, np.uint8)
+    assert np.array_equal(plain, np.where(keep_of(s), NoiseClass.SIGNAL, noise_code).astype(np.uint8))
+    dead = np.random.default_rng(seed).random(len(s)) < 0.3  # classed noise by an earlier stage
+    earlier = NoiseClass.BACKGROUND if noise_code == NoiseClass.HOT_PIXEL else NoiseClass.HOT_PIXEL
+    pre = s.replace(cls=np.where(dead, earlier, NoiseClass.SIGNAL).astype(np.uint8))
+    want = pre.cls.copy()
+    live = np.flatnonzero(~dead)
+    want[live] = np.where(keep_of(s[live]), NoiseClass.SIGNAL, noise_code)
+    assert np.array_equal(classify_all(make(), split(pre, bounds)) if len(s) else want, want)
 
 
 def test_dc_bins_are_anchored_at_time_zero_not_at_the_chunk():

@@ -1,0 +1,60 @@
+"""What the EVT2 and EVT3 encoders may write, in plain Python: the reference of their `_check_kernel`s."""
+
+import numpy as np
+from hypothesis import strategies as st
+
+LIMIT = 2048  # x and y fit in 11 bits in both formats
+
+
+def reference_check(t, x, y, p, prev) -> int:
+    """Index of the first event that cannot be written (time before `prev` or before the previous
+    event, x or y outside 0..2047, p not 0 or 1), else -1."""
+    for i in range(len(t)):
+        if int(t[i]) < prev or not 0 <= int(x[i]) < LIMIT or not 0 <= int(y[i]) < LIMIT or int(p[i]) not in (0, 1):
+            return i
+        prev = int(t[i])
+    return -1
+
+
+# most events valid (x and y often at 2047, p at 1), a few broken in one field, right past its limit
+_valid = st.tuples(st.sampled_from([0, 1, LIMIT - 2, LIMIT - 1]) | st.integers(0, LIMIT - 1),
+                   st.sampled_from([0, 1, LIMIT - 2, LIMIT - 1]) | st.integers(0, LIMIT - 1), st.integers(0, 1))
+_fault = st.sampled_from([None] * 12 + ["t", "x", "y", "p"])
+_past = {"x": st.sampled_from([LIMIT, LIMIT + 1, 0xFFFF]), "y": st.sampled_from([LIMIT, LIMIT + 1, 0xFFFF]),
+         "p": st.sampled_from([2, 255])}
+
+
+@st.composite
+def checked_events(draw, n_max=30):
+    """(t int64, x uint16, y uint16, p uint8, prev) arrays, each event valid or broken in one field."""
+    n = draw(st.integers(0, n_max))
+    t0 = draw(st.integers(-3, 100))
+    prev = draw(st.sampled_from([0, 0, t0, t0 + 1]) | st.integers(-5, 60))
+    t, rows = [], []
+    for _ in range(n):
+        x, y, p = draw(_valid)
+        step = draw(st.sampled_from([0, 1]) | st.integers(0, 40))
+        fault = draw(_fault)
+        if fault == "t":
+            step = -draw(st.integers(1, 3))
+        elif fault == "x":
+            x = draw(_past["x"])
+        elif fault == "y":
+            y = draw(_past["y"])
+        elif fault == "p":
+            p = draw(_past["p"])
+        t.append((t[-1] if t else t0) + step)
+        rows.append((x, y, p))
+    a = np.array(rows, np.int64).reshape(-1, 3)
+    return np.array(t, np.int64), a[:, 0].astype(np.uint16), a[:, 1].astype(np.uint16), a[:, 2].astype(np.uint8), prev
+
+
+def _boundary(t=(0, 1, 1), x=(2047, 0, 5), y=(0, 2047, 5), p=(1, 0, 1), prev=0):
+    return (np.array(t, np.int64), np.array(x, np.uint16), np.array(y, np.uint16), np.array(p, np.uint8), prev)
+
+
+# every limit on its own, right at it and right past it (hypothesis runs these first, every time)
+BOUNDARY_CASES = [
+    _boundary(), _boundary(x=(2047, 2048, 0)), _boundary(y=(0, 2047, 2048)), _boundary(p=(1, 2, 0)),
+    _boundary(t=(3, 2, 4)), _boundary(prev=1), _boundary(x=(0xFFFF, 0, 0)), _boundary(t=(-1, 0, 0), prev=-1),
+]
