@@ -173,7 +173,7 @@ def test_evt3_packets_decode_alone_and_as_one_stream(ev, n_packets, seed):
 
 
 def test_faery_decodes_our_packets_identically(tmp_path):
-    faery = pytest.importorskip("faery")
+    import faery  # declared (dev) dependency: a broken install fails
     rng = np.random.default_rng(5)
     n = 30_000
     t = np.sort(rng.integers(3_000_000, 50_000_000, n)).astype(np.int64)  # crosses two 24-bit wraps

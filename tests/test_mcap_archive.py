@@ -136,7 +136,7 @@ def test_packets_follow_the_grid_and_the_watermark(tmp_path):
 
 # -- interop ------------------------------------------------------------------------------------------------
 def test_mcap_ros2_and_faery_decode_our_packets(tmp_path):
-    faery = pytest.importorskip("faery")
+    import faery  # declared (dev) dependency: a broken install fails
     from mcap.reader import make_reader as reader_of
 
     s = classified(5, 20_000, Geometry(346, 260), t0_us=16_000_000)  # crosses the 24-bit wrap
