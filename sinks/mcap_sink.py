@@ -10,6 +10,7 @@ Channels (`<camera>` defaults to "camera"):
 | `/<camera>/events/noise/hot_pixel`      | same                                           | removed: hot pixels     |
 | `/<camera>/frames`                      | foxglove.RawImage (protobuf), mono8            | frames (paper's look)   |
 | `/<camera>/events/points`               | foxglove.PointCloud (protobuf)                 | X-Y-T points, `class`   |
+| `/tf_static`                            | tf2_msgs/msg/TFMessage (ros2msg/cdr)           | `world` -> `<camera>`   |
 
 The noise channels exist with `keep_noise`; the topic carries each event's noise class, so every event
 and its class can be read back, and ROS 2 tools still see plain EventPackets. Packets hold the events of
@@ -17,6 +18,15 @@ one cell of a fixed event-time grid (`packet_us`, anchored at t = 0; at most `ma
 packet), written cell by cell across all event topics, so a reader can merge the classes back into one
 stream holding a single cell at a time. Metadata records: `evstream` (provenance: pipeline, source,
 geometry, packet grid; at the start) and `evstream.stats` (run statistics; at the end).
+
+3D viewers place a point cloud by its `frame_id` (the camera) in a tree of transforms: with points, the
+archive carries a static identity transform `world` -> `<camera>` on `/tf_static`, as a ROS 2 system
+publishes it; Foxglove and RViz take `world` as the fixed frame. Without it, Rerun 0.41's 3D view has
+no path from "camera" to its root ("tf#/") and draws nothing. Rerun's loader puts an image of frame
+`<camera>` in a frame `<camera>_image_plane` (the child of a camera calibration's pinhole; we have no
+calibration), and one frame it cannot reach sends its 3D view back to "tf#/": with frames, a second
+identity transform `<camera>` -> `<camera>_image_plane` connects it (other tools ignore the extra
+frame). Points carry their class's colour (`red`, `green`, `blue`, `alpha`) beside `class`.
 
 Crash safety: chunks (zstd) are closed and handed to the OS every `chunk_bytes` of messages or
 `flush_s` seconds, whichever comes first; a killed writer loses at most the chunk in progress, and
@@ -37,6 +47,7 @@ from typing import Any
 import mcap.writer
 import numpy as np
 import zstandard
+from evstream.sinks.colours import CLASS_COLOURS
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
@@ -94,6 +105,7 @@ def topics(camera: str = "camera") -> dict[str, str]:
         "hot_pixel": f"/{camera}/events/noise/hot_pixel",
         "frames": f"/{camera}/frames",
         "points": f"/{camera}/events/points",
+        "transforms": "/tf_static",
     }
 
 
@@ -150,6 +162,39 @@ def ros2_image(img: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
     head += b"\x00"  # is_bigendian
     head += b"\x00" * (-(len(head) - 4) % 4) + struct.pack("<II", 3 * w, 3 * h * w)
     return head + np.ascontiguousarray(img, np.uint8).tobytes()
+
+
+WORLD_FRAME = "world"
+TF_DATATYPE = "tf2_msgs/msg/TFMessage"
+_SEP = "=" * 80 + "\n"
+TF_MSGDEF = (
+    "geometry_msgs/TransformStamped[] transforms\n"
+    + _SEP + "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\nTransform transform\n"
+    + _SEP + "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+    + _SEP + "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+    + _SEP + "MSG: geometry_msgs/Transform\nVector3 translation\nQuaternion rotation\n"
+    + _SEP + "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+    + _SEP + "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
+)
+
+
+def ros2_static_transforms(edges: list[tuple[str, str]], stamp_ns: int = 0) -> bytes:
+    """ROS 2 `tf2_msgs/msg/TFMessage` (little-endian CDR): one identity transform per (parent, child)."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    out = b"\x00\x01\x00\x00" + struct.pack("<I", len(edges))
+    for parent, child in edges:
+        out += struct.pack("<ii", sec, nanosec)
+        for name in (parent, child):
+            raw = name.encode() + b"\x00"
+            out += b"\x00" * (-(len(out) - 4) % 4) + struct.pack("<I", len(raw)) + raw
+        out += b"\x00" * (-(len(out) - 4) % 8)  # float64 alignment, counted after the encapsulation header
+        out += struct.pack("<7d", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+    return out
+
+
+_POINT = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("class", "u1"), ("red", "u1"), ("green", "u1"),
+                   ("blue", "u1"), ("alpha", "u1"), ("_", "u1", 3)])
+_POINT_COLOURS = np.array([CLASS_COLOURS[c] for c in sorted(CLASS_COLOURS)], np.uint8)
 
 
 class _EventTopic:
@@ -269,6 +314,13 @@ class McapSink:
         if self.points:
             sid = w.register_schema("foxglove.PointCloud", "protobuf", _file_descriptor_set(PointCloud))
             self._points_channel = w.register_channel(self.topics["points"], "protobuf", sid)
+            sid = w.register_schema(TF_DATATYPE, "ros2msg", TF_MSGDEF.encode())
+            tf_channel = w.register_channel(self.topics["transforms"], "cdr", sid)
+            edges = [(WORLD_FRAME, self.camera)]
+            if self.frames:  # where Rerun's loader puts the camera's images (see the module docstring)
+                edges.append((self.camera, f"{self.camera}_image_plane"))
+            w.add_message(tf_channel, log_time=0, publish_time=0, data=ros2_static_transforms(edges))
+            self.messages += 1
         meta = {
             "format": "evstream MCAP archive v1",
             "camera": self.camera,
@@ -277,7 +329,8 @@ class McapSink:
             "keep_noise": json.dumps(self.keep_noise),
             "topics": json.dumps({k: v for k, v in self.topics.items()
                                   if (k not in ("background", "hot_pixel") or self.keep_noise)
-                                  and (k != "frames" or self.frames) and (k != "points" or self.points)}),
+                                  and (k != "frames" or self.frames)
+                                  and (k not in ("points", "transforms") or self.points)}),
             "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         }
         if self.geometry is not None:
@@ -375,18 +428,21 @@ class McapSink:
     def _write_points(self, chunk: EventChunk) -> None:
         n = len(chunk)
         idx = np.arange(n) if n <= self.point_budget else np.linspace(0, n - 1, self.point_budget).astype(np.int64)
-        rec = np.zeros(len(idx), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("class", "u1"), ("_", "u1", 3)])
+        rec = np.zeros(len(idx), _POINT)
         rec["x"] = chunk.x[idx]
         rec["y"] = chunk.y[idx]
         rec["z"] = (chunk.t[idx] - self._t_first) * 1e-3  # ms since the first event: the T axis
-        rec["class"] = chunk.classes()[idx]
+        cls = chunk.classes()[idx]
+        rec["class"] = cls
+        rec["red"], rec["green"], rec["blue"] = (_POINT_COLOURS[cls, k] for k in range(3))
+        rec["alpha"] = 255
         t_ns = int(chunk.t[-1]) * 1000
-        msg = PointCloud(frame_id=self.camera, point_stride=16, data=rec.tobytes())
+        msg = PointCloud(frame_id=self.camera, point_stride=_POINT.itemsize, data=rec.tobytes())
         msg.timestamp.seconds, msg.timestamp.nanos = divmod(t_ns, 1_000_000_000)
         msg.pose.orientation.w = 1.0
-        for name, offset, kind in (("x", 0, PackedElementField.FLOAT32), ("y", 4, PackedElementField.FLOAT32),
-                                   ("z", 8, PackedElementField.FLOAT32), ("class", 12, PackedElementField.UINT8)):
-            msg.fields.add(name=name, offset=offset, type=kind)
+        for name in ("x", "y", "z", "class", "red", "green", "blue", "alpha"):
+            kind = PackedElementField.FLOAT32 if _POINT[name] == np.float32 else PackedElementField.UINT8
+            msg.fields.add(name=name, offset=_POINT.fields[name][1], type=kind)
         data = msg.SerializeToString()
         self._writer.add_message(self._points_channel, log_time=t_ns, data=data, publish_time=t_ns)
         self.messages += 1

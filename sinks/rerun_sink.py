@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+from evstream.sinks.colours import CLASS_COLOURS
 
 from evstream.events import N_CLASSES, EventChunk, Frame, Geometry, NoiseClass
 from evstream.pipeline import Batch, RunStats
@@ -34,11 +35,6 @@ CLASS_ENTITIES = {
 }
 CLASS_LABELS = {NoiseClass.SIGNAL: "signal", NoiseClass.BACKGROUND: "background activity",
                 NoiseClass.HOT_PIXEL: "hot pixel"}
-CLASS_COLOURS = {  # RGB, apart on a dark background and for common colour blindness
-    NoiseClass.SIGNAL: (80, 170, 255),  # light blue
-    NoiseClass.BACKGROUND: (255, 150, 30),  # orange
-    NoiseClass.HOT_PIXEL: (240, 40, 200),  # magenta
-}
 VIEW_BACKGROUND = (14, 15, 18)
 SLAB_COLOUR = (110, 110, 110)
 NOW_COLOUR = (235, 235, 235)

@@ -192,3 +192,22 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
     web_url = f"http://{shown}:{web_port}/?url={quote(f'rerun+http://{shown}:{grpc_port}/proxy', safe='')}"
     rec.connect_grpc(grpc_url)
     return RerunOutput(rec, "serve", process=proc, grpc_url=grpc_url, web_url=web_url)
+
+
+def serve_file(path: str | os.PathLike, *, bind: str = "127.0.0.1", log_dir: str | os.PathLike | None = None
+               ) -> tuple[subprocess.Popen, str]:
+    """Serve a file Rerun opens (.rrd, .mcap) to the web viewer: the `rerun --serve-web` process (end it
+    with `terminate()`) and the page's URL. Both ports are free ones on `bind`."""
+    exe = rerun_binary()
+    host = _connect_host(bind)
+    grpc_port, web_port = free_port(host), free_port(host)
+    log = Path(log_dir or os.environ.get("TMPDIR", "/tmp")) / f"evstream-rerun-file-{grpc_port}.log"
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(
+            [exe, "--serve-web", "--bind", bind, "--port", str(grpc_port), "--web-viewer-port", str(web_port),
+             str(path)], stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+            env={**os.environ, "RERUN_APP_ONLY": "true"},
+            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
+        )
+    wait_listening(proc, host, [grpc_port, web_port], 30.0, log)
+    return proc, f"http://{host}:{web_port}/?url={quote(f'rerun+http://{host}:{grpc_port}/proxy', safe='')}"

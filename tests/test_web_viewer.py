@@ -1,20 +1,11 @@
 """The web viewer for real: `evstream replay --serve` on 127.0.0.1, the page it prints opened in headless
 Chromium (WebGL2 on SwiftShader, the CPU), and the screenshot must show the three class colours in the
-3D view, as a user on a headless machine sees it through an SSH tunnel.
-
-Chromium is driven over the DevTools protocol on a pipe (`--remote-debugging-pipe`: NUL-terminated JSON
-on file descriptors 3 and 4), which needs nothing beyond the standard library. Plain `--screenshot`
-cannot wait for the viewer: it shoots on the page's load event, while the wasm viewer is still
-"Loading Application Bundle"; here the test re-shoots until the points are drawn. Skipped, with the
-reason, where no Chromium is installed (`.ci/run` installs Debian's `chromium`)."""
+3D view, as a user on a headless machine sees it through an SSH tunnel. The browser is driven by
+`evstream.chromium` (DevTools on a pipe). Skipped, with the reason, where no Chromium is installed
+(`.ci/run` installs Debian's `chromium`)."""
 
 from __future__ import annotations
 
-import base64
-import fcntl
-import json
-import os
-import select
 import shutil
 import signal
 import subprocess
@@ -25,128 +16,12 @@ from pathlib import Path
 import pytest
 from test_rerun_sink_viewer import TURNTABLE, assert_shows_three_classes, listeners, read_json_line
 
-CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
+from evstream.chromium import CHROMIUM, HeadlessChromium
+
 pytestmark = pytest.mark.skipif(CHROMIUM is None or shutil.which("bash") is None,
                                 reason="no Chromium binary (apt-get install chromium)")
 
-VIEWPORT = (1600, 1000)
 RENDER_TIMEOUT_S = 90.0  # page load, wasm compile and the first frames on a loaded 2-core machine
-
-
-class HeadlessChromium:
-    """A headless Chromium (its own process group and throwaway profile) and a DevTools client on a pipe."""
-
-    def __init__(self, profile: Path, log: Path):
-        to_browser, from_browser = os.pipe(), os.pipe()
-        # Descriptors >= 10 so that bash's redirections onto 3 and 4 cannot clobber them.
-        fds = [fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 10) for fd in (*to_browser, *from_browser)]
-        for fd in (*to_browser, *from_browser):
-            os.close(fd)
-        child_in, self._write_fd, self._read_fd, child_out = fds
-        cmd = [CHROMIUM, "--headless=new", "--remote-debugging-pipe", f"--user-data-dir={profile}",
-               # the test runs as root in CI, where Chromium's sandbox cannot start; the page is our own
-               "--no-sandbox",
-               # the loopback and nothing else: host names do not resolve (the viewer's examples list is
-               # not fetched), no update, sync or metrics connections
-               "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               "--disable-quic", "--mute-audio", "--hide-scrollbars",
-               # WebGL2 in software, also where the GPU blocklist or a missing GPU would refuse it
-               "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
-               # a headless tab counts as hidden: keep its timers and frames running
-               "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
-               "--disable-backgrounding-occluded-windows",
-               f"--window-size={VIEWPORT[0]},{VIEWPORT[1]}", "about:blank"]
-        self.log = log
-        with open(log, "wb") as err:
-            self.process = subprocess.Popen(
-                ["bash", "-c", f'exec "$@" 3<&{child_in} 4>&{child_out} {child_in}<&- {child_out}>&-', "bash", *cmd],
-                pass_fds=(child_in, child_out), stdin=subprocess.DEVNULL, stdout=err, stderr=subprocess.STDOUT,
-                start_new_session=True,  # its GPU, renderer and zygote processes go with the group
-            )
-        os.close(child_in)
-        os.close(child_out)
-        self._buffer = b""
-        self._next_id = 0
-        self._events: list[dict] = []
-
-    def _receive(self, deadline: float, what: str) -> dict:
-        """The next DevTools message (a reply or an event)."""
-        while b"\0" not in self._buffer:
-            left = deadline - time.monotonic()
-            assert left > 0, f"Chromium: no {what} in time; its log: {self.log_tail()}"
-            if select.select([self._read_fd], [], [], left)[0]:
-                chunk = os.read(self._read_fd, 1 << 20)
-                assert chunk, f"Chromium exited ({self.process.poll()}): {self.log_tail()}"
-                self._buffer += chunk
-        raw, self._buffer = self._buffer.split(b"\0", 1)
-        return json.loads(raw)
-
-    def call(self, method: str, params: dict | None = None, session: str | None = None,
-             timeout_s: float = 60.0) -> dict:
-        """Send one DevTools command and wait for its reply (events meanwhile are kept for `wait_for`)."""
-        self._next_id += 1
-        message = {"id": self._next_id, "method": method, "params": params or {}}
-        if session:
-            message["sessionId"] = session
-        os.write(self._write_fd, json.dumps(message).encode() + b"\0")
-        deadline = time.monotonic() + timeout_s
-        while True:
-            reply = self._receive(deadline, f"reply to {method}")
-            if reply.get("id") == self._next_id:
-                assert "error" not in reply, f"{method}: {reply['error']}"
-                return reply["result"]
-            if "method" in reply:
-                self._events.append(reply)
-
-    def wait_for(self, event: str, session: str, timeout_s: float) -> dict:
-        """The first `event` of `session` (seen already, or next to come)."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            for i, message in enumerate(self._events):
-                if message["method"] == event and message.get("sessionId") == session:
-                    return self._events.pop(i)["params"]
-            self._events = []
-            message = self._receive(deadline, event)
-            if "method" in message:
-                self._events.append(message)
-
-    def open(self, url: str, timeout_s: float) -> str:
-        """A new tab of VIEWPORT size showing `url` (loaded: its load event fired); its session id."""
-        target = self.call("Target.createTarget", {"url": "about:blank"})["targetId"]
-        session = self.call("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
-        self.call("Page.enable", session=session)
-        self.call("Emulation.setDeviceMetricsOverride",
-                  {"width": VIEWPORT[0], "height": VIEWPORT[1], "deviceScaleFactor": 1, "mobile": False}, session)
-        nav = self.call("Page.navigate", {"url": url}, session)
-        assert not nav.get("errorText"), f"Chromium could not open {url}: {nav['errorText']}"
-        self.wait_for("Page.loadEventFired", session, timeout_s)
-        return session
-
-    def screenshot(self, session: str, png: Path) -> Path:
-        png.write_bytes(base64.b64decode(self.call("Page.captureScreenshot", {"format": "png"}, session)["data"]))
-        return png
-
-    def log_tail(self) -> str:
-        lines = [ln for ln in self.log.read_text(errors="replace").splitlines() if "dbus" not in ln]
-        return "\n".join(lines[-10:])
-
-    def close(self) -> None:
-        try:
-            self.call("Browser.close", timeout_s=10)
-        except (AssertionError, OSError):
-            pass
-        try:
-            self.process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            pass
-        try:
-            os.killpg(self.process.pid, signal.SIGKILL)  # whatever of its group is left
-        except ProcessLookupError:
-            pass
-        self.process.wait(timeout=10)
-        os.close(self._write_fd)
-        os.close(self._read_fd)
 
 
 def shows_three_classes(png: Path) -> bool:
