@@ -10,6 +10,7 @@ past it) or to the server's buffer for late-joining web viewers (`--server-memor
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -34,6 +35,10 @@ def rerun_binary() -> str:
     if not path.is_file():
         raise OSError(f"the rerun viewer binary is missing from the rerun-sdk wheel ({path})")
     return str(path)
+
+
+NO_DISPLAY = ("no display for the desktop viewer (neither DISPLAY nor WAYLAND_DISPLAY is set): "
+              "use --save OUT.rrd, or --serve for the web viewer")
 
 
 def has_display() -> bool:
@@ -90,19 +95,40 @@ def _port_or_free(host: str, port: int) -> int:
     return free_port(host) if is_listening(_connect_host(host), port) else port
 
 
+def _log_tail(log: Path) -> str:
+    """The last line of a viewer's log, without its timestamp and colour codes."""
+    import re
+
+    lines = log.read_text(errors="replace").strip().splitlines() if log.exists() else []
+    return re.sub(r"\x1b\[[0-9;]*m", "", lines[-1]).strip() if lines else ""
+
+
 def wait_listening(proc: subprocess.Popen, host: str, ports: list[int], timeout_s: float, log: Path) -> None:
     """Wait until the rerun process `proc` listens on every port; OSError (with its log's last line)
     when it exits first or does not listen in time."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
-            tail = log.read_text(errors="replace").strip().splitlines()[-1:] if log.exists() else []
-            raise OSError(f"the rerun viewer exited with code {proc.returncode}: {' '.join(tail) or 'no output'}")
+            raise OSError(f"the rerun viewer exited with code {proc.returncode}: {_log_tail(log) or 'no output'}")
         if all(is_listening(host, p) for p in ports):
             return
         time.sleep(0.05)
     proc.terminate()
     raise OSError(f"the rerun viewer did not listen on {host}:{ports} within {timeout_s:.0f} s (log: {log})")
+
+
+def _wait_window(proc: subprocess.Popen, log: Path, timeout_s: float) -> None:
+    """A spawned viewer listens before it opens its window, and exits when the display refuses one (a
+    stale DISPLAY): wait for its renderer to start (its log names the wgpu adapter), so that failure is one
+    line here rather than "gRPC connection severed" from the SDK later."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise OSError(f"the desktop viewer exited (code {proc.returncode}: {_log_tail(log) or 'no output'}): "
+                          "use --save OUT.rrd, or --serve for the web viewer")
+        if log.exists() and b"wgpu adapter" in log.read_bytes():
+            return
+        time.sleep(0.05)
 
 
 @dataclass
@@ -116,11 +142,34 @@ class RerunOutput:
     grpc_url: str | None = None
     web_url: str | None = None
     notes: list[str] = field(default_factory=list)
+    log: Path | None = None
 
     def finish(self) -> None:
         """Flush and detach the SDK (the file gets its footer; a viewer or server keeps the data)."""
-        self.rec.flush()
-        self.rec.disconnect()
+        with self.guard():
+            self.rec.flush()
+            self.rec.disconnect()
+
+    @contextlib.contextmanager
+    def guard(self):
+        """Say in one line why the SDK lost the viewer: its RuntimeError "gRPC connection severed" becomes an
+        OSError naming the cause (a spawned viewer that exited, with its log's last line)."""
+        try:
+            yield
+        except RuntimeError as e:
+            if "connection severed" not in str(e) and "transport error" not in str(e):
+                raise
+            raise OSError(self.lost_viewer()) from None
+
+    def lost_viewer(self) -> str:
+        if self.mode == "spawn" and not has_display():
+            return NO_DISPLAY
+        if self.process is not None and self.process.poll() is not None:
+            tail = _log_tail(self.log) if self.log else ""
+            what = "desktop viewer" if self.mode == "spawn" else "Rerun server"
+            hint = ": use --save OUT.rrd, or --serve for the web viewer" if self.mode == "spawn" else ""
+            return f"the {what} exited (code {self.process.returncode}{': ' + tail if tail else ''}){hint}"
+        return f"lost the connection to the Rerun viewer at {self.grpc_url}"
 
     def stop(self) -> None:
         """End a server this process started (spawned desktop viewers stay open)."""
@@ -162,6 +211,8 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
         if is_listening(host, grpc_port):  # a viewer is already there: log into it, as rr.spawn does
             rec.connect_grpc(url)
             return RerunOutput(rec, "spawn", grpc_url=url, notes=[f"using the viewer at {url}"])
+        if not has_display():
+            raise OSError(NO_DISPLAY)
         log = log_dir / f"evstream-rerun-viewer-{grpc_port}.log"
         with open(log, "wb") as out:
             proc = subprocess.Popen(
@@ -172,8 +223,9 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
                 env={**os.environ, "RERUN_APP_ONLY": "true"},
             )
         wait_listening(proc, host, [grpc_port], 30.0, log)
+        _wait_window(proc, log, 5.0)
         rec.connect_grpc(url)
-        return RerunOutput(rec, "spawn", process=proc, grpc_url=url)
+        return RerunOutput(rec, "spawn", process=proc, grpc_url=url, log=log)
     # serve: a gRPC server buffering the stream plus the web viewer, both on `bind`
     grpc_port = _port_or_free(bind, grpc_port)
     web_port = _port_or_free(bind, web_port)
@@ -191,7 +243,7 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
     shown = socket.gethostname() if host != bind else host
     web_url = f"http://{shown}:{web_port}/?url={quote(f'rerun+http://{shown}:{grpc_port}/proxy', safe='')}"
     rec.connect_grpc(grpc_url)
-    return RerunOutput(rec, "serve", process=proc, grpc_url=grpc_url, web_url=web_url)
+    return RerunOutput(rec, "serve", process=proc, grpc_url=grpc_url, web_url=web_url, log=log)
 
 
 def serve_file(path: str | os.PathLike, *, bind: str = "127.0.0.1", log_dir: str | os.PathLike | None = None

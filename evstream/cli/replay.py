@@ -94,7 +94,7 @@ def cmd_replay(args) -> int:
             lag(batch)
             progress(batch)
 
-        with StopOnSignal() as stop:  # Ctrl-C: stop after the chunk in progress, then the summary as usual
+        with StopOnSignal() as stop, out.guard():  # Ctrl-C: stop after the chunk in progress, then the summary
             stats = pipeline.run(stop.chunks(paced(lag.watch(source), args.speed)), [sink], on_batch=on_batch)
         progress.done()
         out.finish()

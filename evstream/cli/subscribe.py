@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -65,7 +66,7 @@ def cmd_subscribe(args) -> int:
     status = Status()
     stop_reason = None
     try:
-        with StopOnSignal() as stop:
+        with StopOnSignal() as stop, (node.viewer.guard() if node.viewer else contextlib.nullcontext()):
             def should_stop() -> bool:
                 return stop.signum is not None or (deadline is not None and time.monotonic() > deadline)
 
