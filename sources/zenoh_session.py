@@ -2,8 +2,9 @@
 
 Zenoh's own defaults listen on every interface and scout by multicast; a session opened here listens
 and connects only where it is told (`tcp/127.0.0.1:7447` when nothing is said), multicast scouting
-stays off unless asked, and the transport refuses messages over `max_message_bytes` before
-allocating them. Shared by `sources.zenoh_sub`, `sinks.zenoh_pub` and `evstream router`.
+stays off unless asked, and the transport drops any message over `message_limit(max_packet_bytes)`
+while reassembling it (Zenoh's `transport/link/rx/max_message_size`), so a huge put never reaches the
+memory of a router or subscriber opened here. Shared by `sources.zenoh_sub`, `sinks.zenoh_pub` and `evstream router`.
 """
 
 from __future__ import annotations
@@ -15,10 +16,13 @@ import time
 import zenoh
 
 __all__ = [
-    "DEFAULT_ENDPOINT", "MODES", "check_endpoint", "config", "drain", "endpoints", "open_session", "watch_transports",
+    "DEFAULT_ENDPOINT", "DEFAULT_MAX_PACKET_BYTES", "MESSAGE_OVERHEAD_BYTES", "MODES", "check_endpoint", "config",
+    "drain", "endpoints", "message_limit", "open_session", "watch_transports",
 ]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_MAX_PACKET_BYTES = 64 << 20  # the largest EventPacket payload a subscriber or router takes
+MESSAGE_OVERHEAD_BYTES = 64 << 10  # key, encoding, attachment and framing around a payload
 MODES = ("peer", "client", "router")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s]+$")
 
@@ -30,9 +34,15 @@ def check_endpoint(endpoint: str) -> str:
     return endpoint
 
 
+def message_limit(max_packet_bytes: int) -> int:
+    """The largest Zenoh message (payload and its headers) a session takes for packets of `max_packet_bytes`."""
+    return int(max_packet_bytes) + MESSAGE_OVERHEAD_BYTES
+
+
 def config(*, mode: str = "peer", listen=(), connect=(), multicast: bool = False,
-           max_message_bytes: int = 1 << 30) -> zenoh.Config:
-    """A Zenoh config with exactly these endpoints (none of Zenoh's all-interfaces defaults)."""
+           max_packet_bytes: int = DEFAULT_MAX_PACKET_BYTES) -> zenoh.Config:
+    """A Zenoh config with exactly these endpoints (none of Zenoh's all-interfaces defaults), refusing
+    messages over `message_limit(max_packet_bytes)` (Zenoh's default is 1 GiB)."""
     if mode not in MODES:
         raise ValueError(f"Zenoh mode {mode!r}: choose from {', '.join(MODES)}")
     listen = [check_endpoint(e) for e in listen]
@@ -42,7 +52,7 @@ def config(*, mode: str = "peer", listen=(), connect=(), multicast: bool = False
     c.insert_json5("listen/endpoints", json.dumps(listen))
     c.insert_json5("connect/endpoints", json.dumps(connect))
     c.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
-    c.insert_json5("transport/link/rx/max_message_size", json.dumps(int(max_message_bytes)))
+    c.insert_json5("transport/link/rx/max_message_size", json.dumps(message_limit(max_packet_bytes)))
     return c
 
 
@@ -60,17 +70,18 @@ def endpoints(mode: str | None, listen=(), connect=()) -> tuple[str, list[str], 
 
 
 def open_session(*, mode: str | None = None, listen=(), connect=(), multicast: bool = False,
-                 max_message_bytes: int = 1 << 30, config_json: dict | None = None) -> zenoh.Session:
+                 max_packet_bytes: int = DEFAULT_MAX_PACKET_BYTES, config_json: dict | None = None) -> zenoh.Session:
     """Open a session. With neither `listen` nor `connect`: a router listens on DEFAULT_ENDPOINT, anything
     else is a client of the router there (where `evstream router` with no flags listens). `mode` defaults to
     client when only connecting (all traffic through the router), peer otherwise. `config_json`: more
-    Zenoh config keys (path -> value), e.g. queue sizes.
+    Zenoh config keys (path -> value), e.g. queue sizes. `max_packet_bytes`: larger messages are dropped
+    by the transport while being reassembled (see `message_limit`).
 
     A client whose router is not there fails at once (Zenoh's client default: no retry), with an OSError
     naming the endpoint and how to start a router."""
     mode, listen, connect = endpoints(mode, listen, connect)
     cfg = config(mode=mode, listen=listen, connect=connect, multicast=multicast,
-                 max_message_bytes=max_message_bytes)
+                 max_packet_bytes=max_packet_bytes)
     for key, value in (config_json or {}).items():
         cfg.insert_json5(key, json.dumps(value))
     try:

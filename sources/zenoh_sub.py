@@ -14,7 +14,8 @@ the consumer falls behind, the FIFO fills, Zenoh stops reading the link and a pu
 count what it missed (viewing).
 
 Bad input is counted and skipped with a warning, never fatal: payloads over `max_packet_bytes` (checked
-on the received length before anything is copied; the transport refuses larger messages still), bytes
+on the received length before anything is copied; a message longer than the payload limit plus 64 KiB
+of headers is dropped by the transport while being reassembled, unseen and uncounted), bytes
 that are not a CDR EventPacket, undecodable events, coordinates outside the sensor, time going back.
 """
 
@@ -36,12 +37,11 @@ from evstream.codecs.packets import PacketDecoder
 from evstream.events import EventChunk, EventError, Geometry
 
 from ._base import MAX_SENSOR_SIDE
-from .zenoh_session import open_session
+from .zenoh_session import DEFAULT_MAX_PACKET_BYTES, open_session
 
 __all__ = ["FLOWS", "CameraStats", "End", "LivePacket", "ZenohSubscription", "camera_of", "now_ns"]
 
 FLOWS = ("block", "ring")
-DEFAULT_MAX_PACKET_BYTES = 64 << 20
 MAX_ATTACHMENT_BYTES = 256
 ROS_TYPE_MARK = "::msg::dds_::"
 
@@ -167,9 +167,10 @@ class ZenohSubscription:
         self.unattributed_malformed = 0
         self._stopped = threading.Event()
         self._own_session = session is None
-        # the transport refuses anything much larger than a packet we would take (no allocation at all)
+        # the transport drops anything larger than a packet we would take while reassembling it; a session
+        # given here should have been opened with the same `max_packet_bytes`
         self.session = session or open_session(mode=mode, listen=listen, connect=connect, multicast=multicast,
-                                               max_message_bytes=max(2 * self.max_packet_bytes, 1 << 20))
+                                               max_packet_bytes=self.max_packet_bytes)
         try:
             handler = zenoh.handlers.FifoChannel(depth) if flow == "block" else zenoh.handlers.RingChannel(depth)
             self._sub = self.session.declare_subscriber(keyexpr, handler)

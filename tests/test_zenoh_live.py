@@ -516,3 +516,49 @@ def test_a_rejected_packet_leaves_the_sequence_alone_and_upper_case_evt3_is_refu
     err = procs.stderr(sub)
     assert "restarted" not in err and "'EVT3'" in err and "lower case" in err
     assert sum(len(c) for c in open_source(tmp_path / "seq.mcap")) == 3000
+
+
+def _peak_rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM")) / 1024
+
+
+def test_a_huge_put_is_dropped_by_the_transport_before_it_fills_a_router_or_subscriber(procs):
+    """Zenoh's reassembly limit (transport/link/rx/max_message_size) follows --max-packet-bytes on the router
+    and the subscriber: a 48 MiB put passes a router taking 56 MB but not a subscriber taking 1 MB, a 160 MiB
+    put passes neither; neither process's peak memory grows by the message (a few MB of Zenoh's buffers),
+    the link stays up, and the sequence numbers the dropped messages carried are counted in `missing`."""
+    port = free_port()
+    router = procs.start("router", "--listen", f"tcp/127.0.0.1:{port}", "--max-packet-bytes", "56000000")
+    procs.wait_for(router, "listening on")
+    sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--max-packet-bytes", "1000000",
+                           "--until-end", "--idle-s", "60")
+    t, x, y, p, g = _events(TURNTABLE)
+    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
+                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 5000, 1000))]
+    session = open_session(connect=[f"tcp/127.0.0.1:{port}"], max_packet_bytes=1 << 30)
+    try:
+        pub = matched_publisher(session, "evstream/cam1/events")
+        for k in (0, 1):
+            pub.put(good[k], attachment=encode_attachment(k, time.time_ns()))
+        drain(session)
+        time.sleep(1.0)  # both taken in: what the subscriber needs for packets is allocated
+        base_router, base_sub = _peak_rss_mb(router.pid), _peak_rss_mb(sub.pid)
+        pub.put(bytes(48 << 20), attachment=encode_attachment(2, time.time_ns()))  # passes the router only
+        drain(session, 30)
+        pub.put(bytes(160 << 20), attachment=encode_attachment(3, time.time_ns()))  # passes neither
+        drain(session, 30)
+        time.sleep(1.0)
+        grown_router, grown_sub = _peak_rss_mb(router.pid) - base_router, _peak_rss_mb(sub.pid) - base_sub
+        pub.put(good[4], attachment=encode_attachment(4, time.time_ns()))  # the link is still up
+        drain(session)
+        pub.delete()
+        drain(session)
+        out = procs.result(sub, timeout_s=30)
+    finally:
+        session.close()
+    assert grown_sub < 32, f"subscriber peak memory grew by {grown_sub:.0f} MB (a 48 MiB message went by)"
+    assert grown_router < 128, f"router peak memory grew by {grown_router:.0f} MB (a 160 MiB message went by)"
+    c1 = out["cameras"]["cam1"]
+    assert c1["packets"] == 3 and c1["events"] == 3000 and c1["oversized"] == 0
+    assert c1["missing"] == 2 and c1["gaps"] == 1 and c1["last_seq"] == 4

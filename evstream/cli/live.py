@@ -37,7 +37,8 @@ def session_from_args(args, mode=None):
     from evstream.sources.zenoh_session import open_session
 
     return open_session(mode=mode or getattr(args, "mode", None), listen=args.listen, connect=args.connect,
-                        multicast=args.multicast)
+                        multicast=args.multicast, **({"max_packet_bytes": args.max_packet_bytes}
+                                                     if getattr(args, "max_packet_bytes", None) else {}))
 
 
 def check_endpoints(args) -> None:

@@ -37,6 +37,8 @@ def cmd_router(args) -> int:
 def add_parser(sub) -> None:
     p = sub.add_parser("router", help="run a Zenoh router (cameras and nodes on several machines meet here)")
     add_zenoh_flags(p, router=True)
+    p.add_argument("--max-packet-bytes", type=int, default=64 << 20,
+                   help="larger messages are dropped before they fill the router's memory (default 64 MiB)")
     p.add_argument("--duration-s", type=float, help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print the endpoints as JSON at exit")
     p.set_defaults(func=cmd_router)
