@@ -501,8 +501,6 @@ def test_the_point_budget_line_accounts_for_what_was_drawn(tmp_path, capsys, rea
 def test_eval_refuses_an_output_it_cannot_write_before_evaluating(tmp_path, capsys, flag):
     (tmp_path / "a_file").write_text("")
     out = tmp_path / "a_file" / ("rows.json" if flag == "--json" else "roc.png")
-    t0 = time.monotonic()
     rc, stdout, err = run(["eval", SHIPPED, "--seeds", "1", "--ratios", "1", "--rates-hz", flag, out], capsys)
     assert rc == 1 and stdout == ""  # was: every table printed first (minutes on the full set), then the error
     assert one_line_error(err) == f"evstream: error: {flag} {out}: cannot write there: Not a directory"
-    assert time.monotonic() - t0 < 30

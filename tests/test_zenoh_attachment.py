@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import zenoh.ext as zext
 from evstream.sources.zenoh_sub import camera_of
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from evstream.cli.publish import packetize
@@ -30,7 +30,6 @@ def test_our_attachment_round_trips(seq, t):
     assert (a.seq, a.source_time_ns, a.kind) == (seq, t, OURS)
 
 
-@settings(max_examples=50)
 @given(st.integers(0, (1 << 63) - 1), i64, st.sampled_from([16, 24]))
 def test_rmw_attachment_matches_zenoh_serializer(seq, t, gid_len):
     gid = bytes(range(gid_len))
@@ -62,7 +61,6 @@ def test_camera_of_key(key, camera):
     assert camera_of(key) == camera
 
 
-@settings(max_examples=30, deadline=None)
 @given(st.lists(st.integers(0, 30_000), min_size=1, max_size=300), st.integers(1, 40), st.integers(100, 5000))
 def test_packetize_cuts_on_the_grid_and_keeps_every_event(dts, n_chunks, packet_us):
     t = np.cumsum(np.asarray(dts, np.int64))
