@@ -27,7 +27,8 @@ except ModuleNotFoundError:  # pragma: no cover
 
 @runtime_checkable
 class Stage(Protocol):
-    """Maps a chunk to a chunk of the same events (denoise stages write `cls`)."""
+    """Maps a chunk to a chunk: denoise stages keep every event and write `cls`; transforms
+    (`evstream.transforms`) may drop events or change the geometry, and say so."""
 
     def __call__(self, chunk: EventChunk) -> EventChunk: ...
 
@@ -61,9 +62,11 @@ class Sink(Protocol):
 
 @dataclass
 class RunStats:
-    """Counts of a run so far: events in, events per assigned class, frames, time covered."""
+    """Counts of a run so far: events in, events per assigned class, frames, time covered.
+    `events_in` counts the events leaving the stages; `events_dropped` those transforms dropped."""
 
     events_in: int = 0
+    events_dropped: int = 0
     per_class: np.ndarray = field(default_factory=lambda: np.zeros(N_CLASSES, np.int64))
     frames: int = 0
     chunks: int = 0
@@ -106,6 +109,7 @@ class RunStats:
             "events_signal": int(self.per_class[NoiseClass.SIGNAL]),
             "events_background": int(self.per_class[NoiseClass.BACKGROUND]),
             "events_hot_pixel": int(self.per_class[NoiseClass.HOT_PIXEL]),
+            "events_dropped": self.events_dropped,
             "frames": self.frames,
             "chunks": self.chunks,
             "duration_us": self.duration_us,
@@ -133,8 +137,10 @@ class Pipeline:
         self.stats = RunStats()
 
     def process(self, chunk: EventChunk) -> Batch:
+        n = len(chunk)
         for stage in self.stages:
             chunk = stage(chunk)
+        self.stats.events_dropped += n - len(chunk)
         frames = self.framer.push(chunk) if self.framer is not None else []
         self.stats.add(chunk, len(frames))
         return Batch(chunk, frames, self.stats)
@@ -153,16 +159,18 @@ class Pipeline:
         """Drive `source` through the pipeline into `sinks`; sinks are closed even on error."""
         sinks = list(sinks)
         t0 = time.perf_counter()
-        geometry = getattr(source, "geometry", None)
+        geometry = None  # of the events leaving the stages: a transform may crop, rotate, downsample
         try:
             for chunk in source:
-                geometry = chunk.geometry
                 batch = self.process(chunk)
+                geometry = batch.events.geometry
                 for sink in sinks:
                     sink.write(batch)
                 self.stats.wall_s = time.perf_counter() - t0
                 if on_batch is not None:
                     on_batch(batch)
+            if geometry is None and getattr(source, "geometry", None) is not None:
+                geometry = self.out_geometry(source.geometry)  # no chunk came
             if geometry is not None:
                 batch = self.finish(geometry)
                 if batch.frames:
@@ -173,6 +181,17 @@ class Pipeline:
             for sink in sinks:
                 sink.close(self.stats)
         return self.stats
+
+    def out_geometry(self, geometry: Geometry) -> Geometry:
+        """The geometry of the events leaving the stages (transforms may crop, rotate, downsample)."""
+        for stage in self.stages:
+            out = getattr(stage, "out_geometry", None)
+            geometry = out(geometry) if out is not None else geometry
+        return geometry
+
+    def reports(self) -> list[str]:
+        """One line from each stage that reports something at the end (what a rate limiter dropped)."""
+        return [stage.report() for stage in self.stages if callable(getattr(stage, "report", None))]
 
     def describe(self) -> dict[str, Any]:
         """Parameters of every stage and the framer, for provenance (MCAP metadata, logs)."""
@@ -229,7 +248,7 @@ def register(role: str, kind: str):
 
 def _load_plugins() -> None:
     # Importing the packages registers their stages and framers.
-    from . import denoise, framing  # noqa: F401
+    from . import denoise, framing, transforms  # noqa: F401
 
 
 def kinds(role: str) -> list[str]:

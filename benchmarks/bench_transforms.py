@@ -1,0 +1,94 @@
+"""Transforms (crop, flip, rotate, transpose, downsample, polarity, time range, rate limit, undistort) at
+346x260 in 10 k-event chunks, beside tonic's CenterCrop / RandomFlipLR(p=1) / Downsample / CropTime on the
+same events (a whole-recording structured array, as tonic works) when tonic is installed.
+
+Stream: the turntable recording tiled to 10 s and time-compressed 20x (5 M events/s). Each case runs the
+stage over every chunk and keeps the output (as the next stage would). Round robin, best of `rounds`:
+the machine is shared, so the ratios are the fair part.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from evstream.pipeline import build
+from evstream.testing import split
+
+from .bench_framing import tiled
+from .common import report
+
+CHUNK = 10_000
+
+
+def stage_cases(stream):
+    g = stream.geometry
+    t0, t1 = int(stream.t[0]), int(stream.t[-1])
+    specs = {
+        "crop 200x150": {"kind": "crop", "x0": 73, "y0": 55, "width": 200, "height": 150},
+        "flip x": {"kind": "flip", "axis": "x"},
+        "rotate 90": {"kind": "rotate", "degrees": 90},
+        "transpose": {"kind": "transpose"},
+        "downsample 2": {"kind": "downsample", "factor": 2},
+        "polarity on": {"kind": "polarity", "keep": "on"},
+        "time_range middle half": {"kind": "time_range", "start_us": t0 + (t1 - t0) // 4,
+                                   "end_us": t1 - (t1 - t0) // 4},
+        "rate_limit 2 M ev/s": {"kind": "rate_limit", "rate_hz": 2e6},
+        "undistort plumb_bob": {"kind": "undistort", "fx": 300.0, "fy": 300.0, "cx": g.width / 2,
+                                "cy": g.height / 2, "distortion": [-0.3, 0.1, 0.001, -0.001, 0.0]},
+    }
+    return specs
+
+
+def tonic_cases(stream):
+    try:
+        import tonic.transforms as T
+    except Exception as e:
+        return {}, f"tonic not importable ({type(e).__name__}: {e}); pip install -e '.[bench]'"
+    g = stream.geometry
+    ev = np.empty(len(stream), np.dtype([("x", "<i8"), ("y", "<i8"), ("t", "<i8"), ("p", "<i8")]))
+    ev["x"], ev["y"], ev["t"], ev["p"] = stream.x, stream.y, stream.t, stream.p
+    size = (g.width, g.height, 2)
+    t0, t1 = int(stream.t[0]), int(stream.t[-1])
+    return {
+        "crop 200x150": lambda: T.CenterCrop(sensor_size=size, size=(200, 150))(ev),
+        "flip x": lambda: T.RandomFlipLR(sensor_size=size, p=1.0)(ev),
+        "downsample 2": lambda: T.Downsample(spatial_factor=0.5)(ev),
+        "time_range middle half": lambda: T.CropTime(min=t0 + (t1 - t0) // 4, max=t1 - (t1 - t0) // 4)(ev),
+    }, None
+
+
+def run(rounds: int = 5) -> None:
+    stream = tiled(10, 20)
+    n = len(stream)
+    chunks = split(stream, list(range(0, n, CHUNK)) + [n])
+    cases = {}
+    for name, spec in stage_cases(stream).items():
+        try:
+            build("stage", spec)
+        except ValueError as e:  # a stage this checkout does not have yet
+            print(f"{name}: skipped ({e})")
+            continue
+        cases[name] = lambda spec=spec: [st(c) for st in [build("stage", spec)] for c in chunks]
+    peers, why_not = tonic_cases(stream)
+    for name, fn in peers.items():
+        cases[f"tonic {name} (whole recording)"] = fn
+    best = dict.fromkeys(cases, float("inf"))
+    for fn in cases.values():
+        fn()
+    for _ in range(rounds):
+        for name, fn in cases.items():
+            t0 = time.perf_counter()
+            fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    for name in cases:
+        peer = f"tonic {name} (whole recording)"
+        extra = {"vs_tonic": f"{best[peer] / best[name]:.1f}x faster"} if peer in best else {}
+        report(name, n / best[name], **extra)
+    if why_not:
+        print(f"tonic skipped: {why_not}")
+
+
+if __name__ == "__main__":
+    run()

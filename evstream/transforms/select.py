@@ -1,0 +1,139 @@
+"""Transforms that drop events by what they are or when they happen: polarity selection, a time range,
+and the event-rate limiter (a token bucket in event time).
+
+`rate_limit`: a bucket holding at most `burst_events` tokens refills at `rate_hz` tokens per second of
+event time; an event passes when a whole token is there (and takes it), else it is dropped and counted.
+So any interval of event time T passes at most `burst_events + rate_hz·T` events: a flooding sensor is
+capped, a quiet one passes everything. The tokens are kept in integer units of 1/1e6 event
+(rate_hz·1 µs each microsecond), so the decisions are exact and the same for any chunking. The stage
+counts what it saw and dropped (`passed`, `dropped`, `report()`). Memory: two integers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from ..events import EventChunk
+from ..pipeline import register
+from .base import Transform, select
+
+UNIT = 1_000_000  # token units per event: a rate in events/s adds rate_hz units per µs
+
+
+@register("stage", "polarity")
+@dataclass(eq=False)
+class Polarity(Transform):
+    """Keep the events of one polarity: `keep` "on" (p = 1) or "off" (p = 0)."""
+
+    keep: str = "on"
+    drops_events = True
+
+    def __post_init__(self):
+        if self.keep not in ("on", "off"):
+            raise ValueError(f"polarity: keep must be 'on' or 'off', got {self.keep!r}")
+
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        want = 1 if self.keep == "on" else 0
+        return select(chunk, np.flatnonzero(chunk.p == want), chunk.geometry)
+
+
+@register("stage", "time_range")
+@dataclass(eq=False)
+class TimeRange(Transform):
+    """Keep the events with `start_us` <= t < `end_us` (either None: open on that side)."""
+
+    start_us: int | None = None
+    end_us: int | None = None
+    drops_events = True
+
+    def __post_init__(self):
+        for name in ("start_us", "end_us"):
+            v = getattr(self, name)
+            if v is not None:
+                if isinstance(v, float) and v.is_integer():
+                    v = int(v)
+                if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                    raise ValueError(f"time_range: {name} must be a whole number of µs, got {v!r}")
+                setattr(self, name, int(v))
+        if self.start_us is not None and self.end_us is not None and self.end_us <= self.start_us:
+            raise ValueError(f"time_range: end_us ({self.end_us}) must be after start_us ({self.start_us})")
+
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        a = 0 if self.start_us is None else int(np.searchsorted(chunk.t, self.start_us, side="left"))
+        b = len(chunk) if self.end_us is None else int(np.searchsorted(chunk.t, self.end_us, side="left"))
+        if a == 0 and b == len(chunk):
+            return chunk
+        return select(chunk, slice(a, max(a, b)), chunk.geometry)
+
+
+@njit(cache=True, nogil=True)
+def token_bucket(t, state, rate_hz, capacity, keep):
+    """Token bucket over events in time order. `state` = [tokens, last_t, started] (tokens in 1/UNIT
+    events). Writes the indices of the passing events to `keep`; returns how many."""
+    tokens = state[0]
+    last_t = state[1]
+    if state[2] == 0 and len(t):
+        last_t = t[0]
+        state[2] = 1
+    k = 0
+    for i in range(len(t)):
+        dt = t[i] - last_t
+        last_t = t[i]
+        if tokens < capacity:  # refill; dt * rate can be huge after a pause: cap before adding
+            room = capacity - tokens
+            tokens = capacity if dt >= room // rate_hz + 1 else tokens + dt * rate_hz
+            if tokens > capacity:
+                tokens = capacity
+        keep[k] = i
+        ok = tokens >= UNIT
+        tokens -= UNIT * ok
+        k += ok
+    state[0] = tokens
+    state[1] = last_t
+    return k
+
+
+@register("stage", "rate_limit")
+@dataclass(eq=False)
+class RateLimit(Transform):
+    """Cap the event rate: a token bucket of `burst_events` refilled at `rate_hz` events per second of
+    event time (default burst: 10 ms at that rate, at least 1). Drops the excess and counts it."""
+
+    rate_hz: float = 1e6
+    burst_events: int | None = None
+    drops_events = True
+    passed: int = field(default=0, init=False)
+    dropped: int = field(default=0, init=False)
+
+    def __post_init__(self):
+        r = self.rate_hz
+        if isinstance(r, bool) or not isinstance(r, (int, float, np.number)) or not math.isfinite(r) or r < 1:
+            raise ValueError(f"rate_limit: rate_hz must be a finite number >= 1 event/s, got {r!r}")
+        self.rate_hz = r
+        if self.burst_events is None:
+            self.burst_events = max(1, round(r * 0.01))
+        b = self.burst_events
+        if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1:
+            raise ValueError(f"rate_limit: burst_events must be an integer >= 1, got {b!r}")
+        self.burst_events = int(b)
+        self._rate_units = round(r)  # units of 1/UNIT event per µs: events/s, to the nearest whole
+        self._capacity = self.burst_events * UNIT
+        self._state = np.array([self._capacity, 0, 0], np.int64)  # a full bucket at the start
+
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        n = len(chunk)
+        keep = np.empty(n, np.intp)
+        k = token_bucket(chunk.t, self._state, self._rate_units, self._capacity, keep)
+        self.passed += k
+        self.dropped += n - k
+        return chunk if k == n else select(chunk, keep[:k], chunk.geometry)
+
+    def report(self) -> str:
+        seen = self.passed + self.dropped
+        share = 100 * self.dropped / seen if seen else 0.0
+        return (f"rate_limit {self.rate_hz:g} ev/s: dropped {self.dropped:,} of {seen:,} events "
+                f"({share:.1f} %)")
