@@ -8,6 +8,7 @@
 from .base import Transform
 from .geometry import Crop, Downsample, Flip, Rotate, Transpose
 from .select import Polarity, RateLimit, TimeRange
+from .undistort import Undistort
 
 __all__ = ["Crop", "Downsample", "Flip", "Polarity", "RateLimit", "Rotate", "TimeRange", "Transform",
-           "Transpose"]
+           "Transpose", "Undistort"]
