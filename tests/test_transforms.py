@@ -220,3 +220,56 @@ def test_frames_of_a_transformed_stream_are_those_of_the_transformed_events():
     assert len(frames) == len(direct) > 3
     for a, b in zip(frames, direct):
         assert a.data.shape == (1, 5, 7) and np.array_equal(a.data, b.data)
+
+
+# -- a time range at the reader -------------------------------------------------------------------
+class ListSource:
+    """A source that cannot seek: chunks from a list, counting how many were read."""
+
+    def __init__(self, chunks):
+        self.chunks, self.geometry, self.read = chunks, chunks[0].geometry, 0
+
+    def __iter__(self):
+        for c in self.chunks:
+            self.read += 1
+            yield c
+
+
+def test_time_range_source_filters_and_stops_reading(tmp_path):
+    from evstream.sources import native, open_source
+
+    from evstream.transforms import TimeRangeSource
+
+    s = stream(6, 5000)
+    path = tmp_path / "rec.npz"
+    native.save(path, s)
+    start, end = int(s.t[1234]), int(s.t[3456]) + 1
+    want = s[(s.t >= start) & (s.t < end)]
+    for chunk_events in (1, 333, 10_000):
+        src = TimeRangeSource(native.open(path, chunk_events=chunk_events), start, end)
+        assert src.geometry == G
+        got = concat(list(src), G)
+        assert np.array_equal(got.to_structured()[["t", "x", "y", "p"]], want.to_structured()[["t", "x", "y", "p"]])
+    chunks = split(s, list(range(0, len(s), 100)) + [len(s)])
+    plain = ListSource(chunks)
+    src = TimeRangeSource(plain, start, end)
+    out = list(src)
+    assert not src.seeks and np.array_equal(concat(out).t, want.t)
+    assert plain.read < len(chunks) - 10  # it stopped reading after the range
+    assert out[-1].t_end == end  # no watermark past the range
+    open_ended = concat(list(TimeRangeSource(open_source(path), start_us=start)), G)
+    assert np.array_equal(open_ended.t, s.t[s.t >= start])
+    with pytest.raises(ValueError, match="end_us"):
+        TimeRangeSource(plain, 10, 10)
+
+
+def test_a_reader_that_seeks_is_asked_to():
+    from evstream.transforms import TimeRangeSource
+
+    class Seeking(ListSource):
+        def set_time_range(self, start_us, end_us):
+            self.asked = (start_us, end_us)
+            return True
+
+    src = TimeRangeSource(Seeking([stream(1, 50)]), 100, 900)
+    assert src.seeks and src.source.asked == (100, 900)

@@ -7,8 +7,8 @@
 
 from .base import Transform
 from .geometry import Crop, Downsample, Flip, Rotate, Transpose
-from .select import Polarity, RateLimit, TimeRange
+from .select import Polarity, RateLimit, TimeRange, TimeRangeSource
 from .undistort import Undistort
 
-__all__ = ["Crop", "Downsample", "Flip", "Polarity", "RateLimit", "Rotate", "TimeRange", "Transform",
+__all__ = ["Crop", "Downsample", "Flip", "Polarity", "RateLimit", "Rotate", "TimeRange", "TimeRangeSource", "Transform",
            "Transpose", "Undistort"]

@@ -137,3 +137,37 @@ class RateLimit(Transform):
         share = 100 * self.dropped / seen if seen else 0.0
         return (f"rate_limit {self.rate_hz:g} ev/s: dropped {self.dropped:,} of {seen:,} events "
                 f"({share:.1f} %)")
+
+
+class TimeRangeSource:
+    """The events of `source` with `start_us` <= t < `end_us` (None: open on that side), as a source.
+
+    A reader that can seek (it has `set_time_range(start_us, end_us)` and returns True) starts at the
+    range itself; any other (all of today's) is decoded from its start and filtered here.
+    Either way reading stops at the first chunk whose watermark reaches `end_us` (nothing later can be
+    in range), and the last chunk's watermark is capped at `end_us`, so no frame past the range is
+    closed by the watermark. Every other attribute (geometry, fraction_read, info) is the source's."""
+
+    def __init__(self, source, start_us: int | None = None, end_us: int | None = None):
+        self._range = TimeRange(start_us, end_us)
+        self.source = source
+        self.start_us, self.end_us = self._range.start_us, self._range.end_us
+        seek = getattr(source, "set_time_range", None)
+        self.seeks = bool(callable(seek) and seek(self.start_us, self.end_us))
+
+    def __getattr__(self, name):
+        return getattr(self.source, name)
+
+    def __iter__(self):
+        end = self.end_us
+        started = False
+        for chunk in self.source:
+            out = self._range(chunk)
+            done = end is not None and chunk.t_end >= end
+            if done and out.t_end > end:
+                out = out.replace(t_end=end)
+            if len(out) or started:
+                started = True
+                yield out
+            if done:
+                return
