@@ -10,6 +10,8 @@ One recording, timeline `event_time` (event-clock time since the first event). E
   recede: the slab stays in front of the camera while the stream flows through it (the paper's
   Figure 1, animated); `slab` is a wireframe box marking it;
 - `frames/<framer>` — Image (OFF black, ON white, gray background: the paper's rendering);
+- `representations/<kind>` — with a representation framer, its picture beside the frames (the time
+  surface in viridis, the voxel grid's bins side by side: `framing.render.render_representation`);
 - `stats/events/rate_hz`, `stats/noise_fraction/{background,hot_pixel}` per `stats_bin_us` of event
   time, `stats/frames/rate_hz`, `stats/frames/events_per_frame` per frame.
 
@@ -25,6 +27,8 @@ import rerun.blueprint as rrb
 from evstream.sinks.colours import CLASS_COLOURS
 
 from evstream.events import N_CLASSES, EventChunk, Frame, Geometry, NoiseClass
+from evstream.framing.render import render_representation
+from evstream.framing.represent import REPRESENTATIONS
 from evstream.pipeline import Batch, RunStats
 
 TIMELINE = "event_time"
@@ -91,6 +95,9 @@ def blueprint(geometry: Geometry, slab_ms: float = 100.0, framer: str | None = N
             rrb.TimeSeriesView(origin="stats/frames/events_per_frame", name="events per frame"),
         ))
         frames_view = rrb.Spatial2DView(origin=f"frames/{framer}", name=f"frames ({framer})")
+        if framer in REPRESENTATIONS:  # the representation beside the counts of the same window
+            frames_view = rrb.Horizontal(frames_view, rrb.Spatial2DView(origin=f"representations/{framer}",
+                                                                         name=framer))
         side = rrb.Vertical(frames_view, rrb.Vertical(*series), row_shares=[2, 3])
     panel = rrb.TimePanel(timeline=TIMELINE, state="collapsed", play_state=play_state)
     return rrb.Blueprint(
@@ -374,6 +381,8 @@ class RerunSink:
                 self.t0 = frame.t_start
             self.rec.set_time(TIMELINE, duration=np.timedelta64(int(frame.t_end - self.t0), "us"))
             self.rec.log(f"frames/{self.framer or 'frames'}", rr.Image(render_frame(frame.image)))
+            if getattr(frame, "data", None) is not None:  # a representation (time surface, voxel grid, ...)
+                self.rec.log(f"representations/{frame.kind}", rr.Image(render_representation(frame)))
             self.rec.log("stats/frames/events_per_frame", rr.Scalars(frame.n_events))
             if self._last_frame_end is not None and frame.t_end > self._last_frame_end:
                 self.rec.log("stats/frames/rate_hz", rr.Scalars(1e6 / (frame.t_end - self._last_frame_end)))

@@ -153,3 +153,25 @@ class PngWriter:
 
     def close(self, stats) -> None:
         pass
+
+
+# -- representations ----------------------------------------------------------------------------------
+def render_representation(rep) -> np.ndarray:
+    """A representation (`represent.Representation`) as an RGB picture: the time surface and the
+    last-timestamp image in viridis over the newer polarity (max of the channels, 0..1), the count
+    image in `hot` (robust scale), the histogram in coolwarm over ON − OFF, the voxel grid's bins side
+    by side in coolwarm (one shared robust scale, so the bins compare)."""
+    data = rep.data
+    if rep.kind in ("timesurface", "timestamp"):
+        idx = (255 * np.clip(data.max(axis=0), 0, 1)).round().astype(np.uint8)
+        return COLOUR_MAPS["viridis"][idx]
+    if rep.kind == "count":
+        total = data[0]
+        idx = (255 * np.clip(total / robust_scale(total), 0, 1)).round().astype(np.uint8)
+        return COLOUR_MAPS["hot"][idx]
+    if rep.kind == "histogram":
+        return COLOUR_MAPS["coolwarm"][signed(data[1] - data[0])]
+    if rep.kind == "voxel":
+        s = robust_scale(data)
+        return mosaic([[COLOUR_MAPS["coolwarm"][signed(b, s)] for b in data]], background=0)
+    raise ValueError(f"no rendering for representation {rep.kind!r}")

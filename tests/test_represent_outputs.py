@@ -1,0 +1,78 @@
+"""Representations leaving the pipeline: .npz files per window, pictures, and the Rerun layout."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from evstream.sinks.rerun_sink import RerunSink, blueprint
+from evstream.sinks.rerun_viewer import open_output
+from rerun.chunk import RrdReader
+
+from evstream.events import Geometry
+from evstream.framing.arrays import ArrayWriter
+from evstream.framing.render import render_representation
+from evstream.framing.represent import REPRESENTATIONS
+from evstream.pipeline import Pipeline, build
+from evstream.testing import frames_of, random_stream
+
+G = Geometry(30, 20)
+
+
+def test_npz_files_hold_the_arrays_and_window_times(tmp_path):
+    s = random_stream(1, 3000, G)
+    pipe = Pipeline([], build("framer", {"kind": "voxel", "bins": 3, "window_us": 20_000}))
+    writer = ArrayWriter(tmp_path / "vox")
+    pipe.run([s[:1000], s[1000:]], [writer])
+    frames = frames_of(build("framer", {"kind": "voxel", "bins": 3, "window_us": 20_000}), [s])
+    files = sorted((tmp_path / "vox").iterdir())
+    assert [f.name for f in files] == [f"frame_{i:06d}.npz" for i in range(len(frames))] and writer.written > 3
+    for path, fr in zip(files, frames):
+        with np.load(path) as z:  # no allow_pickle needed: no Python objects inside
+            assert z["data"].dtype == np.float32 and np.array_equal(z["data"], fr.data)
+            assert (int(z["t_start_us"]), int(z["t_end_us"]), int(z["n_events"])) == (fr.t_start, fr.t_end,
+                                                                                       fr.n_events)
+            assert str(z["kind"]) == "voxel" and list(z["channels"]) == ["bin0", "bin1", "bin2"]
+    assert not list((tmp_path / "vox").glob("*.part"))
+
+
+def test_npz_output_refuses_plain_frames(tmp_path):
+    pipe = Pipeline([], build("framer", {"kind": "fw", "window_us": 5000}))
+    with pytest.raises(ValueError, match="takes a representation framer"):
+        pipe.run([random_stream(1, 500, G)], [ArrayWriter(tmp_path / "x")])
+
+
+@pytest.mark.parametrize("kind", REPRESENTATIONS)
+def test_pictures(kind):
+    fr = frames_of(build("framer", {"kind": kind, "window_us": 20_000}), [random_stream(2, 2000, G)])[1]
+    img = render_representation(fr)
+    assert img.dtype == np.uint8 and img.shape[2] == 3 and img.shape[0] == G.height
+    assert img.shape[1] == (5 * G.width + 4 * 4 if kind == "voxel" else G.width)
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 2  # not a blank picture
+
+
+def test_rerun_shows_the_time_surface_beside_the_frames(tmp_path):
+    path = tmp_path / "ts.rrd"
+    out = open_output(save=str(path))
+    sink = RerunSink(out.rec, geometry=G, framer="timesurface")
+    pipe = Pipeline([], build("framer", {"kind": "timesurface", "window_us": 10_000, "tau_us": 5000}))
+    stats = pipe.run([random_stream(3, 3000, G)], [sink])
+    out.finish()
+    entities = {}
+    for chunk in RrdReader(path).stream():
+        entities[chunk.entity_path] = entities.get(chunk.entity_path, 0) + chunk.num_rows
+    assert entities.get("/representations/timesurface", 0) == stats.frames == entities.get("/frames/timesurface")
+    assert RrdReader(path).blueprints()
+
+
+def _origins(item) -> list[str]:
+    """The origins of every view in a blueprint container, depth first, left to right."""
+    if hasattr(item, "origin"):  # a view (its `contents` is a query, not children)
+        return [str(item.origin)]
+    return [o for c in getattr(item, "contents", ()) for o in _origins(c)]
+
+
+def test_blueprint_puts_the_representation_beside_the_frames():
+    side = blueprint(G, framer="timesurface").root_container.contents[1]
+    pair = side.contents[0]  # the frames row: counts, then the representation
+    assert _origins(pair) == ["frames/timesurface", "representations/timesurface"]
+    assert "representations" not in " ".join(_origins(blueprint(G, framer="fw").root_container))
