@@ -191,8 +191,8 @@ def test_kernels_match_plain_python(seed, n):
 
     t = np.cumsum(rng.integers(0, 500, n)).astype(np.int64)
     rate, cap = int(rng.integers(1, 10_000)), int(rng.integers(1, 5)) * UNIT
-    state, keep = np.array([cap, 0, 0], np.int64), np.empty(n, np.intp)
-    k = token_bucket(t, state, rate, cap, keep)
+    state, flags = np.array([cap, 0, 0], np.int64), np.empty(n, np.uint8)
+    k = token_bucket(t, state, rate, cap, flags)
     tokens, ref = cap, []
     for i in range(n):
         if i:
@@ -200,7 +200,7 @@ def test_kernels_match_plain_python(seed, n):
         if tokens >= UNIT:
             tokens -= UNIT
             ref.append(i)
-    assert keep[:k].tolist() == ref and state[0] == tokens
+    assert np.flatnonzero(flags).tolist() == ref and k == len(ref) and state[0] == tokens
 
 
 def test_frames_of_a_transformed_stream_are_those_of_the_transformed_events():
@@ -273,3 +273,19 @@ def test_a_reader_that_seeks_is_asked_to():
 
     src = TimeRangeSource(Seeking([stream(1, 50)]), 100, 900)
     assert src.seeks and src.source.asked == (100, 900)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 200))
+def test_compaction_kernel_matches_plain_python(seed, n):
+    from evstream.transforms.base import compact
+
+    rng = np.random.default_rng(seed)
+    flags = (rng.random(n) < rng.random()).astype(np.uint8)
+    t, x = np.sort(rng.integers(0, 10**6, n)), rng.integers(0, 500, n).astype(np.uint16)
+    y, p = rng.integers(0, 500, n).astype(np.uint16), rng.integers(0, 2, n).astype(np.uint8)
+    out = (np.empty(n + 1, np.int64), np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16),
+           np.empty(n + 1, np.uint8), np.empty(n + 1, np.intp))
+    k = compact(flags, t, x, y, p, *out)
+    ref = [(int(t[i]), int(x[i]), int(y[i]), int(p[i]), i) for i in range(n) if flags[i]]
+    assert list(zip(*(a[:k].tolist() for a in out))) == ref

@@ -19,7 +19,7 @@ from numba import njit
 
 from ..events import EventChunk
 from ..pipeline import register
-from .base import Transform, select
+from .base import Transform, select, select_flagged
 
 UNIT = 1_000_000  # token units per event: a rate in events/s adds rate_hz units per µs
 
@@ -37,8 +37,7 @@ class Polarity(Transform):
             raise ValueError(f"polarity: keep must be 'on' or 'off', got {self.keep!r}")
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
-        want = 1 if self.keep == "on" else 0
-        return select(chunk, np.flatnonzero(chunk.p == want), chunk.geometry)
+        return select_flagged(chunk, chunk.p if self.keep == "on" else chunk.p ^ np.uint8(1))
 
 
 @register("stage", "time_range")
@@ -71,9 +70,9 @@ class TimeRange(Transform):
 
 
 @njit(cache=True, nogil=True)
-def token_bucket(t, state, rate_hz, capacity, keep):
+def token_bucket(t, state, rate_hz, capacity, flags):
     """Token bucket over events in time order. `state` = [tokens, last_t, started] (tokens in 1/UNIT
-    events). Writes the indices of the passing events to `keep`; returns how many."""
+    events). Sets flags[i] to 1 for the events that pass, 0 for the others; returns how many pass."""
     tokens = state[0]
     last_t = state[1]
     if state[2] == 0 and len(t):
@@ -88,9 +87,9 @@ def token_bucket(t, state, rate_hz, capacity, keep):
             tokens = capacity if dt >= room // rate_hz + 1 else tokens + dt * rate_hz
             if tokens > capacity:
                 tokens = capacity
-        keep[k] = i
         ok = tokens >= UNIT
         tokens -= UNIT * ok
+        flags[i] = ok
         k += ok
     state[0] = tokens
     state[1] = last_t
@@ -126,11 +125,11 @@ class RateLimit(Transform):
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
         n = len(chunk)
-        keep = np.empty(n, np.intp)
-        k = token_bucket(chunk.t, self._state, self._rate_units, self._capacity, keep)
+        flags = np.empty(n, np.uint8)
+        k = token_bucket(chunk.t, self._state, self._rate_units, self._capacity, flags)
         self.passed += k
         self.dropped += n - k
-        return chunk if k == n else select(chunk, keep[:k], chunk.geometry)
+        return chunk if k == n else select_flagged(chunk, flags)
 
     def report(self) -> str:
         seen = self.passed + self.dropped
