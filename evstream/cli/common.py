@@ -28,7 +28,16 @@ def open_recording(path: str, args=None):
         options["geometry"] = geometry_flag(args.geometry)
     if getattr(args, "timestamps", None):
         options["timestamps"] = args.timestamps
-    return open_source(path, **options)
+    source = open_source(path, **options)
+    start, end = getattr(args, "start_us", None), getattr(args, "end_us", None)
+    if start is None and end is None:
+        return source
+    from ..transforms import TimeRangeSource
+
+    try:
+        return TimeRangeSource(source, start, end)
+    except ValueError as e:
+        raise UsageError(f"--start-us {start} --end-us {end}: {str(e).removeprefix('time_range: ')}") from None
 
 
 def geometry_flag(text: str):
@@ -62,6 +71,9 @@ def add_source_flags(p) -> None:
     p.add_argument("--geometry", metavar="WxH", help="sensor size, overriding the file's")
     p.add_argument("--timestamps", choices=["error", "sort", "drop"],
                    help="what to do with timestamps that go back (default: the format's)")
+    p.add_argument("--start-us", type=int, metavar="US", help="read only events at or after this time (µs)")
+    p.add_argument("--end-us", type=int, metavar="US",
+                   help="read only events before this time (µs); reading stops there")
 
 
 def add_pipeline_flags(p) -> None:

@@ -9,12 +9,14 @@ from ..events import NoiseClass
 from ..framing import options as framer_options
 from ..framing.render import STYLES
 from ..pipeline import build
-from .common import Progress, UsageError, add_pipeline_flags, open_recording, pipeline_from_args
+from .common import Progress, UsageError, add_pipeline_flags, add_source_flags, open_recording, pipeline_from_args
 
 
 def cmd_frames(args) -> int:
     """Frame a recording with one or more framers; print the paper's frame statistics, write PNGs."""
+    from ..framing.arrays import ArrayWriter
     from ..framing.render import PngWriter
+    from ..framing.represent import REPRESENTATIONS
     from ..framing.stats import FrameStats
 
     try:
@@ -34,7 +36,8 @@ def cmd_frames(args) -> int:
         writer = None
         if args.out:
             out_dir = Path(args.out) / kind if len(kinds_) > 1 else Path(args.out)
-            writer = PngWriter(out_dir, style=args.style)
+            # a representation's arrays as .npz (one per window); frames as PNG pictures
+            writer = ArrayWriter(out_dir) if kind in REPRESENTATIONS else PngWriter(out_dir, style=args.style)
             sinks.append(writer)
         progress = Progress(source)
 
@@ -50,7 +53,9 @@ def cmd_frames(args) -> int:
                      "events_in": stats.events_in, "events_signal": int(stats.per_class[NoiseClass.SIGNAL]),
                      "denoise": [st["kind"] for st in pipeline.describe()["stages"]],
                      "png_dir": str(writer.out_dir) if writer else None,
-                     "png_written": writer.written if writer else 0})
+                     "png_written": writer.written if writer else 0,
+                     "files": "npz" if kind in REPRESENTATIONS else "png",
+                     "events_dropped": stats.events_dropped, "reports": pipeline.reports()})
     if args.json:
         print(json.dumps({"source": args.source, "results": rows}))
         return 0
@@ -62,16 +67,21 @@ def cmd_frames(args) -> int:
         print(f"{r['framer']['kind']:<10} {r['frames']:>7,} {r['frame_rate_hz']:>11.2f} {r['mean_events']:>12,.2f} "
               f"{r['variance_events']:>16,.2f} {r['empty_frames']:>6,}")
         if r["png_dir"]:
-            print(f"  wrote {r['png_written']:,} PNG frames to {r['png_dir']}")
+            what = "arrays (.npz)" if r["files"] == "npz" else "PNG frames"
+            print(f"  wrote {r['png_written']:,} {what} to {r['png_dir']}")
+        for line in r["reports"]:
+            print(f"  {line}")
     return 0
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("frames", help="frame a recording; print frame rate and events per frame, write PNGs")
     p.add_argument("source")
+    add_source_flags(p)
     add_pipeline_flags(p)
     framer_options.add_framer_flags(p, default="adaptive", several=True)
-    p.add_argument("--out", metavar="DIR", help="write every frame as a PNG into DIR (DIR/<framer> for several)")
+    p.add_argument("--out", metavar="DIR", help="write every frame as a PNG into DIR (DIR/<framer> for several); "
+                                                 "a representation's arrays as .npz, one per window")
     p.add_argument("--style", default="paper", choices=STYLES,
                    help="PNG rendering: paper (gray, ON white, OFF black), signed, or a colour map")
     p.add_argument("--json", action="store_true", help="print the statistics as JSON")

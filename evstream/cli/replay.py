@@ -82,7 +82,8 @@ def cmd_replay(args) -> int:
     out = open_output(save=save, spawn=spawn, serve=args.serve, connect=args.viewer, bind=args.bind,
                       memory_limit=args.memory_limit)
     try:
-        sink = RerunSink(out.rec, geometry=source.geometry, framer=getattr(pipeline.framer, "kind", None),
+        geometry = pipeline.out_geometry(source.geometry)  # after the transforms (crop, rotate, downsample)
+        sink = RerunSink(out.rec, geometry=geometry, framer=getattr(pipeline.framer, "kind", None),
                          point_budget_hz=args.point_budget or None, slab_ms=args.slab_ms,
                          play_state=None if out.mode == "save" else "following")
         if out.web_url:
@@ -106,6 +107,8 @@ def cmd_replay(args) -> int:
             print(json.dumps(summary), flush=True)
         else:
             print(summary_line(stats))
+            for line in pipeline.reports():  # what a transform dropped (the rate limiter)
+                print(line)
             shown = sink.points_logged + sink.points_dropped
             if sink.points_dropped:
                 burst = int(sink.budget.capacity)  # saved-up points: a short recording draws more than rate x time

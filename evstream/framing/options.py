@@ -19,15 +19,19 @@ PARAM_FLAGS = {
     "--n-base": ("n_base", int, "baseline events per slice N_base (adaptive; default 8000 for 346x260)"),
     "--k-us-per-event": ("k_us_per_event", float, "overlap step k, µs per event (adaptive; default 1)"),
     "--overlap-max-us": ("overlap_max_us", int, "largest overlap O_max, µs (adaptive; default half the window)"),
+    "--window": ("window", str, "windows of a representation: fw, fn, oa or adaptive (default fw)"),
+    "--tau-us": ("tau_us", float, "decay time constant τ, µs (timesurface; default 50000)"),
+    "--bins": ("bins", int, "temporal bins B (voxel; default 5)"),
 }
 
 
 def add_framer_flags(p, *, default: str | None = "none", several: bool = False) -> None:
     """Add `--framer` (one kind, or a comma-separated list when `several`) and the parameter flags."""
-    names = "fw|fn|oa|adaptive" + ("" if several else "|none")
+    names = "fw|fn|oa|adaptive|timesurface|voxel|histogram|count|timestamp" + ("" if several else "|none")
     p.add_argument("--framer", metavar=names if not several else names + "[,...]", default=default,
                    help="framer: fixed window, fixed count, overlapping accumulation, the paper's adaptive "
-                        "overlap" + (" (comma-separated to compare)" if several else "") + f"; default {default}")
+                        "overlap, or a representation over one of those (--window)"
+                        + (" (comma-separated to compare)" if several else "") + f"; default {default}")
     for flag, (_, typ, text) in PARAM_FLAGS.items():
         p.add_argument(flag, type=typ, default=None, help=text)
     p.add_argument("--all-events", action="store_true",
