@@ -280,21 +280,134 @@ def _rates(stage, s, t_from_us=0):
     return {c: kept[lab == c].mean() for c in (SIG, BA, HOT)}
 
 
-@pytest.mark.parametrize("name, min_signal, max_ba, max_hot", [
-    # measured with the defaults: baf .82/.10/.08, stcf 1.0/.27/.25, khodamoradi .69/.04/.03,
-    # ynoise .82/.06/.05, dwf .98/.83/.91 (weak at 5 Hz/pixel on a small sensor), hotpixel 1.0/1.0/0.0
-    ("baf", 0.75, 0.15, 0.15), ("stcf", 0.95, 0.35, 0.35), ("khodamoradi", 0.6, 0.08, 0.08),
-    ("ynoise", 0.75, 0.1, 0.1), ("dwf", 0.95, 0.9, 0.95), ("hotpixel", 0.99, 1.0, 0.01),
+@pytest.mark.parametrize("name, min_signal", [
+    # signal kept on the scene (no closed form for a turntable's edges): measured baf .82, stcf 1.0,
+    # khodamoradi .69, ynoise .82, dwf .98, hotpixel 1.0
+    ("baf", 0.75), ("stcf", 0.95), ("khodamoradi", 0.6), ("ynoise", 0.75), ("dwf", 0.95), ("hotpixel", 0.99),
 ])
-def test_filters_remove_their_noise(noisy, name, min_signal, max_ba, max_hot):
+def test_filters_keep_signal(noisy, name, min_signal):
     kept = _rates(build("stage", {"kind": name}), noisy, t_from_us=1_000_000 if name == "hotpixel" else 50_000)
     assert kept[SIG] >= min_signal, kept
+
+
+@pytest.mark.parametrize("name, max_ba, max_hot", [
+    # no closed form for these three (measured khodamoradi .04/.03, ynoise .06/.05, dwf .83/.91: DWF's
+    # two windows select where past events lie, so even on pure noise 1 - (1 - A/N)^72 is off by .03);
+    # baf, stcf, refractory and hotpixel are held to their expected rates on pure noise below
+    ("khodamoradi", 0.08, 0.08), ("ynoise", 0.1, 0.1), ("dwf", 0.88, 0.95),
+])
+def test_filters_remove_their_noise(noisy, name, max_ba, max_hot):
+    kept = _rates(build("stage", {"kind": name}), noisy, t_from_us=50_000)
     assert kept[BA] <= max_ba and kept[HOT] <= max_hot, kept
 
 
-def test_refractory_thins_fast_pixels_only(noisy):
-    kept = _rates(RefractoryFilter(refractory_us=1000), noisy)
-    assert kept[SIG] > 0.95 and kept[BA] > 0.98 and kept[HOT] < 0.5, kept
+# -- what each filter keeps of pure Poisson noise, from the noise's statistics (not from the code) ---
+NOISE_G = Geometry(96, 72)
+RATE_HZ = 5.0
+SPAN_US = 2_000_000
+HOT_XY = [(10, 10), (50, 30), (0, 0), (95, 40)]
+
+
+@pytest.fixture(scope="module")
+def pure_noise():
+    """Uniform background activity at RATE_HZ per pixel and four hot pixels at 1 kHz and 2 kHz, drawn here
+    with numpy (not evstream.noise): Poisson processes whose statistics give each filter's expected rates."""
+    rng = np.random.default_rng(11)
+    g = NOISE_G
+    n = rng.poisson(RATE_HZ * g.width * g.height * SPAN_US * 1e-6)
+    parts = [(rng.integers(0, SPAN_US, n), rng.integers(0, g.width, n), rng.integers(0, g.height, n),
+              np.full(n, BA))]
+    for k, (x, y) in enumerate(HOT_XY):
+        m = rng.poisson((1000.0 if k % 2 else 2000.0) * SPAN_US * 1e-6)
+        parts.append((rng.integers(0, SPAN_US, m), np.full(m, x), np.full(m, y), np.full(m, HOT)))
+    t, x, y, lab = (np.concatenate(a) for a in zip(*parts))
+    order = np.argsort(t, kind="stable")
+    return EventChunk.from_arrays(t[order], x[order], y[order], rng.integers(0, 2, len(t)), g,
+                                  label=lab[order].astype(np.uint8))
+
+
+def _neighbours(g, radius, metric):
+    """Per pixel, how many other pixels lie within `radius` (Chebyshev 'max' or Manhattan 'sum')."""
+    yy, xx = np.mgrid[: g.height, : g.width]
+    out = np.zeros((g.height, g.width), np.int64)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            if (dx, dy) == (0, 0) or (metric == "sum" and abs(dx) + abs(dy) > radius):
+                continue
+            out += (xx + dx >= 0) & (xx + dx < g.width) & (yy + dy >= 0) & (yy + dy < g.height)
+    return out
+
+
+def _expect(kept_mask, p_expected, what):
+    """The kept fraction within 5 binomial standard errors (plus 0.003 for the model's approximations)."""
+    n = len(kept_mask)
+    tol = 5 * np.sqrt(p_expected * (1 - p_expected) / n) + 0.003
+    assert abs(kept_mask.mean() - p_expected) <= tol, f"{what}: kept {kept_mask.mean():.4f}, expected " \
+        f"{p_expected:.4f} ± {tol:.4f} over {n} events"
+
+
+def _background_kept(stage, s, t_from_us):
+    kept = concat([stage(c) for c in split(s, list(range(0, len(s), 20_000)) + [len(s)])]).cls == SIG
+    ba = (s.label == BA) & (s.t >= t_from_us)
+    hot_px = np.zeros((s.geometry.height, s.geometry.width), bool)
+    for x, y in HOT_XY:
+        hot_px[y, x] = True
+    ba &= ~hot_px[s.y, s.x]  # background events far from a hot pixel's influence are counted below
+    return kept, ba
+
+
+def test_baf_keeps_noise_with_a_neighbour_within_tau(pure_noise):
+    """Kept iff one of the 8 neighbours fired within tau: P = 1 - exp(-n_nb · rate · tau) per pixel."""
+    tau_us = 2000
+    kept, ba = _background_kept(BackgroundActivityFilter(tau_us=tau_us), pure_noise, tau_us)
+    near_hot = _near(HOT_XY, 1)
+    ba &= ~near_hot[pure_noise.y, pure_noise.x]
+    n_nb = _neighbours(NOISE_G, 1, "max")[pure_noise.y[ba], pure_noise.x[ba]]
+    _expect(kept[ba], float(np.mean(1 - np.exp(-n_nb * RATE_HZ * tau_us * 1e-6))), "baf")
+
+
+def test_stcf_keeps_noise_with_k_neighbours_within_tau(pure_noise):
+    """Kept iff at least k of the neighbour pixels fired within tau: binomial over n_nb pixels, each
+    active with q = 1 - exp(-rate · tau)."""
+    from math import comb
+
+    tau_us, k = 25_000, 2
+    kept, ba = _background_kept(SpatioTemporalCorrelationFilter(tau_us=tau_us, k=k), pure_noise, tau_us)
+    ba &= ~_near(HOT_XY, 1)[pure_noise.y, pure_noise.x]
+    q = 1 - np.exp(-RATE_HZ * tau_us * 1e-6)
+    n_nb = _neighbours(NOISE_G, 1, "max")[pure_noise.y[ba], pure_noise.x[ba]]
+    p = [1 - sum(comb(n, j) * q**j * (1 - q) ** (n - j) for j in range(k)) for n in range(9)]
+    _expect(kept[ba], float(np.mean(np.array(p)[n_nb])), "stcf")
+
+
+def test_refractory_keeps_an_event_after_a_quiet_refractory_period(pure_noise):
+    """A Poisson pixel at rate λ is quiet for the refractory period before an event with P = exp(-λ·T)."""
+    refr_us = 1000
+    cls = RefractoryFilter(refractory_us=refr_us)(pure_noise).cls
+    for k, (x, y) in enumerate(HOT_XY):
+        rate = 1000.0 if k % 2 else 2000.0
+        at = (pure_noise.x == x) & (pure_noise.y == y) & (pure_noise.label == HOT) & (pure_noise.t >= refr_us)
+        _expect(cls[at] == SIG, float(np.exp(-rate * refr_us * 1e-6)), f"refractory, hot pixel {k}")
+    kept, ba = _background_kept(RefractoryFilter(refractory_us=refr_us), pure_noise, refr_us)
+    _expect(kept[ba], float(np.exp(-RATE_HZ * refr_us * 1e-6)), "refractory, background")
+
+
+def test_hotpixel_learner_flags_the_hot_pixels_and_no_other(pure_noise):
+    """Window 1 s at 100 Hz: a hot pixel's ~1000-2000 events of the previous window pass the count, a
+    background pixel's Poisson(5) never does (P(≥ 100) < 1e-80): from the second window on every hot
+    pixel's event is classed HOT and every other pixel's event kept."""
+    cls = HotPixelLearner(window_us=1_000_000, rate_hz=100.0)(pure_noise).cls
+    later = pure_noise.t >= 1_000_000
+    assert (cls[later & (pure_noise.label == HOT)] == HOT).all()
+    kept, ba = _background_kept(HotPixelLearner(window_us=1_000_000, rate_hz=100.0), pure_noise, 1_000_000)
+    assert kept[ba].all() and ba.sum() > 10_000
+
+
+def _near(points, radius):
+    m = np.zeros((NOISE_G.height, NOISE_G.width), bool)
+    for x, y in points:
+        m[max(0, y - radius): y + radius + 1, max(0, x - radius): x + radius + 1] = True
+    return m
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
