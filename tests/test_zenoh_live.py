@@ -393,17 +393,31 @@ def test_viewer_save_per_camera_and_frames_republished(procs, tmp_path):
         for p in pubs:
             procs.result(p)
         out, node_out = procs.result(viewer), procs.result(node)
-        images = []
+        images, pixels = [], []
         while (s := frames.try_recv()) is not None:
             msg = RawImage()
             msg.ParseFromString(s.payload.to_bytes())
             images.append((str(s.key_expr), msg.width, msg.height, msg.encoding, len(msg.data)))
+            pixels.append(np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.width))
     finally:
         session.close()
     assert out["flow"] == "block" and out["output"] == "save"
     assert {k: v["events"] for k, v in out["cameras"].items()} == {"cam1": 254078, "cam2": 174999}
     assert node_out["cameras"]["cam1"]["frames"] == len(images) > 0
     assert all(i == ("evstream/cam1/frames", 346, 260, "mono8", 346 * 260) for i in images)
+    # each frame's pixels: the frames of the same denoiser and framer run offline on cam1's recording,
+    # rendered here from their counts (white where ON outnumber OFF, black where OFF do, grey 128 else)
+    from evstream.events import concat
+    from evstream.framing import FixedWindow
+    from evstream.pipeline import Pipeline, build
+
+    src = open_source(TURNTABLE)
+    offline = Pipeline([build("stage", {"kind": "paper"})], framer=FixedWindow(window_us=50_000))
+    want = offline.process(concat(list(src), src.geometry)).frames + offline.finish(src.geometry).frames
+    assert len(want) == len(pixels)
+    for k, (got, frame) in enumerate(zip(pixels, want)):
+        off, on = frame.counts[0].astype(np.int64), frame.counts[1].astype(np.int64)
+        np.testing.assert_array_equal(got, np.select([on > off, off > on], [255, 0], 128), err_msg=f"frame {k}")
     paths = sorted(p.name for p in tmp_path.glob("live*.rrd"))
     assert len(paths) == 2  # live.rrd for the first camera, live.<camera>.rrd for the other
     for name in paths:
