@@ -9,11 +9,12 @@ STAMP  := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	# setuptools' "Editable installation" notice is information, not a warning about this project
+	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/evstream replay recordings/turntable.npz --save out/turntable.rrd
+	$(BIN)/evstream replay recordings/turntable.npz --framer fw --save out/turntable.rrd
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

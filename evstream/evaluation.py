@@ -169,26 +169,33 @@ def _tuned(t, label, score, warm, t_split) -> dict:
 
 
 def run(recordings: dict[str, EventChunk], conditions: Iterable[Condition], seeds: Iterable[int],
-        methods: Iterable[str], tune: bool = False, progress: Callable[[str], None] | None = None,
+        methods: Iterable[str], tune: bool = False, progress: Callable[[int, int, str], None] | None = None,
         curves: dict | None = None) -> list[dict]:
     """Every recording × condition × seed × method; rows as `evaluate` returns them. ROC curves of the
-    first seed go into `curves` when given."""
-    methods, seeds = list(methods), list(seeds)
+    first seed go into `curves` when given. `progress(done, total, what)` is called before each
+    recording × condition × seed (and once at the end, done == total)."""
+    methods, seeds, conditions = list(methods), list(seeds), list(conditions)
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown method(s) {sorted(unknown)}; known: {', '.join(METHODS)}")
     rows = []
+    per_recording = len(conditions) * len(seeds)
+    total, done = len(recordings) * per_recording, 0
     for rec, events in recordings.items():
         signal, notes = as_signal(events)
         if len(signal) < 100:
+            done += per_recording
             continue
         for cond in conditions:
             for seed in seeds:
                 if progress:
-                    progress(f"{rec} {cond.name} seed {seed}")
+                    progress(done, total, f"{rec} {cond.name} seed {seed}")
+                done += 1
                 keep_curves = curves if seed == seeds[0] else None
                 for row in evaluate(rec, signal, cond, seed, methods, tune, keep_curves):
                     rows.append({**row, **notes})
+    if progress:
+        progress(total, total, "")
     return rows
 
 

@@ -14,9 +14,14 @@ for name, examples in (("default", 25), ("thorough", 400)):
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
+def real_data_skip_reason() -> str:
+    return (f"real recordings not present at {REAL_DATA}; point EVSTREAM_REAL_DATA=/path/to/real at a folder "
+            "of them to run this test")
+
+
 @pytest.fixture
 def real_data() -> Path:
     """The shared folder of real recordings; tests using it skip where it is absent (a user's clone)."""
     if not REAL_DATA.is_dir():
-        pytest.skip(f"real recordings not present at {REAL_DATA}")
+        pytest.skip(real_data_skip_reason())
     return REAL_DATA

@@ -115,18 +115,35 @@ def test_synth_then_replay_writes_rrd(tmp_path, capsys):
     assert rrd.stat().st_size > 10_000
 
 
-def test_progress_line_gives_the_percent_of_the_file(tmp_path):
+def test_progress_bar_gives_the_percent_of_the_file(tmp_path):
+    import io
+    import types
+
     from evstream.cli import Progress
     from evstream.pipeline import RunStats
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
 
     path = tmp_path / "r.npz"
     native.save(path, random_stream(3, 10_000))
     src = open_source(path, chunk_events=2_500)
-    progress, stats = Progress(src), RunStats()
-    lines = []
+    screen = Terminal()
+    progress, stats = Progress(src, screen, min_interval_s=0, delay_s=0), RunStats()
     for chunk in src:
         stats.add(chunk, 0)
-        lines.append(progress._line(stats))
-    assert [line.split("%")[0].strip() for line in lines] == ["25", "50", "75", "100"]
-    assert lines[-1].split("%", 1)[1].strip().startswith("10,000 events")
-    assert "%" not in Progress(None)._line(stats).split("noise")[0]  # a source that cannot tell: no percent
+        progress(types.SimpleNamespace(stats=stats))
+    shown = screen.getvalue()
+    assert [p for p in ("25%", "50%", "75%", "100%") if p in shown] == ["25%", "50%", "75%", "100%"]
+    assert "10,000 events" in shown
+    unknown = Terminal()
+    p = Progress(None, unknown, min_interval_s=0, delay_s=0)
+    p(types.SimpleNamespace(stats=stats))
+    p.done()
+    assert "10,000 events" in unknown.getvalue() and "%|" not in unknown.getvalue()  # no percent it cannot know
+    for quiet, stream in ((True, Terminal()), (False, io.StringIO())):  # --quiet, or not a terminal: nothing
+        p = Progress(src, stream, quiet=quiet, min_interval_s=0, delay_s=0)
+        p(types.SimpleNamespace(stats=stats))
+        p.done()
+        assert stream.getvalue() == ""

@@ -9,14 +9,18 @@ from pathlib import Path
 from ..framing import options as framer_options
 from ..pipeline import build, paced
 from .common import (
+    STORED_CLASSES_NOTE,
     Progress,
     StopOnSignal,
     UsageError,
     add_pipeline_flags,
+    add_quiet_flag,
     add_source_flags,
     attach_framer,
     check_numbers,
+    create_folder,
     evstream_version,
+    folder_note,
     not_the_input,
     open_recording,
     pipeline_from_args,
@@ -42,22 +46,25 @@ def cmd_archive(args) -> int:
     provenance = {"source": str(args.source), "source_format": getattr(source, "format", type(source).__name__),
                   "width": source.geometry.width, "height": source.geometry.height,
                   "pipeline": pipeline.describe(), "command": sys.argv[1:] or None, "evstream": evstream_version()}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    created = create_folder(Path(args.out).parent)
     sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
                     frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
                     packet_us=args.packet_us,
                     flush_s=args.flush_s, metadata=provenance, geometry=pipeline.out_geometry(source.geometry))
-    progress = Progress(source)
+    progress = Progress(source, quiet=args.quiet)
     with StopOnSignal() as stop:
         stats = pipeline.run(stop.chunks(paced(source, args.speed)), [sink], on_batch=progress)
     progress.done()
-    summary = {**stats.as_dict(), "mcap": args.out, "packets": sink.packets, "frames_written": sink.frames_written,
+    summary = {**stats.as_dict(), "mcap": args.out, "created_folder": created or None, "packets": sink.packets,
+               "frames_written": sink.frames_written,
                "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
     if args.json:
         print(json.dumps(summary), flush=True)
     else:
         print(summary_line(stats))
-        print(f"wrote {args.out}: {sink.packets:,} event packets, {sink.frames_written:,} frames")
+        if getattr(args, "stored_classes", False):
+            print(STORED_CLASSES_NOTE)
+        print(f"wrote {args.out}{folder_note(created)}: {sink.packets:,} event packets, {sink.frames_written:,} frames")
     if stop.signum is not None:
         print(f"evstream: interrupted by {signal.Signals(stop.signum).name}; {args.out} is complete up to there",
               file=sys.stderr)
@@ -84,5 +91,6 @@ def add_parser(sub) -> None:
                    help="close a chunk at least this often: what a crash can lose (default 1 s)")
     p.add_argument("--speed", type=float, default=0.0, help="1 = real time, 0 = as fast as possible")
     p.add_argument("--json", action="store_true", help="print run statistics as JSON")
+    add_quiet_flag(p)
     framer_options.add_framer_flags(p)
     p.set_defaults(func=cmd_archive)

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import sys
-import time
 from pathlib import Path
 
 from ..events import NoiseClass
@@ -77,13 +77,23 @@ def add_source_flags(p) -> None:
 
 
 def add_pipeline_flags(p) -> None:
-    p.add_argument("--denoise", metavar="NAME", help="denoise stage (none, truth, ...); default: the paper's")
+    p.add_argument("--denoise", metavar="NAME",
+                   help="denoise stage (none, truth, ...); default: the paper's, or an archive's stored classes")
     p.add_argument("--pipeline", metavar="FILE.toml", help="pipeline description (overrides --denoise)")
 
 
+STORED_CLASSES_NOTE = "noise classes as stored in the archive (--denoise NAME classifies again)"
+
+
 def pipeline_from_args(args, source) -> Pipeline:
+    """The pipeline the flags name; with neither flag the paper's cascade, except on an evstream archive,
+    whose events keep the classes stored with them (classifying them again would stack a second filter
+    on the first): then no stage, and `args.stored_classes` is set for the summary to say so."""
     if getattr(args, "pipeline", None):
         return Pipeline.from_toml(args.pipeline)
+    if args.denoise is None and getattr(source, "archive", False):
+        args.stored_classes = True
+        return Pipeline([])
     name = args.denoise or "paper"
     if name == "none":
         return Pipeline([])
@@ -115,33 +125,79 @@ def event_rate(hz: float) -> str:
 
 
 class Progress:
-    """One status line on a terminal (percent of the file where the reader knows it, events, events/s,
-    noise fraction); silent when piped."""
+    """A progress bar on stderr (tqdm) fed by the API's callbacks: `on_batch` for a pipeline run (percent of
+    the file where the reader knows it, else events; rate and noise fraction beside), `update(done, total)`
+    for the rest. Off when stderr is not a terminal or with `--quiet`, so logs and pipes stay clean; shown
+    after `delay_s`, so a quick command prints none."""
 
-    def __init__(self, source=None, stream=None):
+    PERCENT = "{desc}{percentage:3.0f}%|{bar}| {elapsed}<{remaining}{postfix}"
+
+    def __init__(self, source=None, stream=None, *, quiet: bool = False, desc: str | None = None,
+                 unit: str = "events", min_interval_s: float = 0.25, delay_s: float = 1.0):
+        from tqdm import tqdm
+
         self.source = source
         self.stream = sys.stderr if stream is None else stream  # at call time: stderr may have been swapped
-        self.enabled = self.stream.isatty()
-        self._last = 0.0
+        self.enabled = not quiet and self.stream.isatty()
+        size = shutil.get_terminal_size((100, 24))  # a terminal that reports no size (a new pty) gets 100x24
+        self._bar = tqdm(total=None, desc=desc, unit=unit, unit_scale=True, file=self.stream, leave=False,
+                         disable=not self.enabled, mininterval=min_interval_s, delay=delay_s,
+                         ncols=size.columns, nrows=size.lines)
 
     def __call__(self, batch) -> None:
-        now = time.monotonic()
-        if not self.enabled or now - self._last < 0.25:
+        if not self.enabled:
             return
-        self._last = now
-        self.stream.write("\r" + self._line(batch.stats) + "\x1b[K")
-        self.stream.flush()
-
-    def _line(self, s: RunStats) -> str:
+        s: RunStats = batch.stats
         noise = 1 - s.per_class[NoiseClass.SIGNAL] / s.events_in if s.events_in else 0.0
+        self.postfix(f"{s.events_in:,} events, {event_rate(s.throughput_hz)}, noise {100 * noise:.1f}%")
         fraction = getattr(self.source, "fraction_read", None)
-        done = f"{100 * fraction:3.0f}%  " if fraction is not None else ""
-        return f"{done}{s.events_in:,} events  {event_rate(s.throughput_hz)}  noise {100 * noise:.1f}%"
+        if fraction is not None:
+            self.update(100 * fraction, 100, percent=True)
+        else:
+            self.update(s.events_in, None)
+
+    def postfix(self, text: str) -> None:
+        if self.enabled:
+            self._bar.set_postfix_str(text, refresh=False)
+
+    def update(self, done: float, total: float | None, percent: bool = False) -> None:
+        """Where the work is: `done` of `total` (None: unknown); `percent`: show only the percentage."""
+        if not self.enabled:
+            return
+        if percent and self._bar.bar_format != self.PERCENT:
+            self._bar.bar_format = self.PERCENT
+        if total != self._bar.total:
+            self._bar.total = total
+        self._bar.n = done
+        if done == total:
+            self._bar.refresh()
+        else:
+            self._bar.update(0)
 
     def done(self) -> None:
-        if self.enabled:
-            self.stream.write("\r\x1b[K")
-            self.stream.flush()
+        self._bar.close()
+
+
+def add_quiet_flag(p) -> None:
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar (there is none when stderr is not "
+                   "a terminal)")
+
+
+def create_folder(folder) -> str:
+    """Make `folder` (and its parents) if missing; returns the topmost folder it made, or '' (a summary
+    line says what it created: `folder_note`)."""
+    folder = Path(folder)
+    missing = ""
+    for f in (folder, *folder.parents):
+        if f.exists():
+            break
+        missing = str(f)
+    folder.mkdir(parents=True, exist_ok=True)
+    return missing
+
+
+def folder_note(made: str) -> str:
+    return f" (created folder {made}/)" if made else ""
 
 
 def summary_line(s: RunStats) -> str:

@@ -8,27 +8,36 @@ from pathlib import Path
 
 from .. import noise, synth
 from ..events import EventError, Geometry
-from .common import UsageError, check_numbers, open_recording
+from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note, open_recording
+
+DEFAULT_NOISE_RATIO = 0.5  # what `make recordings` and the README use
 
 
 def cmd_synth(args) -> int:
     from evstream.sources import native
 
     geometry = Geometry(args.width, args.height)
-    events = synth.scene(args.scene, geometry, duration_us=int(args.duration_ms * 1000), seed=args.seed)
+    if args.noise_ratio is None and args.ba_rate_hz is None:
+        args.noise_ratio = DEFAULT_NOISE_RATIO
+    progress = Progress(quiet=args.quiet, desc=f"synth {args.scene} ")
+    try:
+        events = synth.scene(args.scene, geometry, duration_us=int(args.duration_ms * 1000), seed=args.seed,
+                             on_progress=lambda done, total: progress.update(100 * done / total, 100, percent=True))
+    finally:
+        progress.done()
     meta = {"scene": args.scene, "seed": args.seed, "duration_ms": args.duration_ms,
             "generator": "evstream synth"}
-    if args.noise_ratio is not None or args.ba_rate_hz is not None:
+    if args.noise_ratio or args.ba_rate_hz is not None:
         spec = noise.NoiseSpec(noise_ratio=args.noise_ratio, ba_rate_hz=args.ba_rate_hz,
                                hot_pixels=args.hot_pixels, hot_share=args.hot_share)
         events = noise.inject(events, spec, seed=args.seed + 1, t_start_us=0,
                               t_stop_us=int(args.duration_ms * 1000))
         meta["noise"] = {k: v for k, v in vars(spec).items()}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    created = create_folder(Path(args.out).parent)
     native.save(args.out, events, meta)
     counts = events.class_counts("label")
-    print(f"wrote {args.out}: {len(events):,} events ({counts[0]:,} signal, {counts[1]:,} background, "
-          f"{counts[2]:,} hot pixel)")
+    print(f"wrote {args.out}{folder_note(created)}: {len(events):,} events ({counts[0]:,} signal, "
+          f"{counts[1]:,} background, {counts[2]:,} hot pixel)")
     return 0
 
 
@@ -49,6 +58,9 @@ def cmd_eval(args) -> int:
             except OSError as e:
                 raise OSError(f"{flag} {out}: cannot write there: {e.strerror or e}") from None
     paths = list(args.recordings) or sorted(str(p) for p in Path("recordings").glob("*.npz"))
+    if not paths and not args.real:
+        raise UsageError(f"no recording to evaluate: none given and no recordings/*.npz in {Path.cwd()}; "
+                         "name recordings (evstream eval REC ...), add --real DIR, or run from the repository root")
     if args.real:
         paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")
     recordings = {}
@@ -76,11 +88,17 @@ def cmd_eval(args) -> int:
     conditions = [evaluation.Condition(noise_ratio=r) for r in args.ratios] + [
         evaluation.Condition(ba_rate_hz=r) for r in args.rates_hz]
     curves: dict = {}
-    say = (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr)) if sys.stderr.isatty() else None
-    rows = evaluation.run(recordings, conditions, range(args.seeds), methods, tune=args.tune,
-                          progress=say, curves=curves)
-    if say:
-        print(file=sys.stderr)
+    progress = Progress(quiet=args.quiet, desc="eval", unit=" runs")
+
+    def say(done, total, what):
+        progress.update(done, total)
+        progress.postfix(what)
+
+    try:
+        rows = evaluation.run(recordings, conditions, range(args.seeds), methods, tune=args.tune,
+                              progress=say, curves=curves)
+    finally:
+        progress.done()
     print(evaluation.report(rows, tune=args.tune))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
@@ -113,10 +131,12 @@ def add_synth_parser(sub) -> None:
     p.add_argument("--duration-ms", type=float, default=1000.0)
     p.add_argument("--width", type=int, default=synth.DEFAULT_GEOMETRY.width)
     p.add_argument("--height", type=int, default=synth.DEFAULT_GEOMETRY.height)
-    p.add_argument("--noise-ratio", type=float, help="noise events per signal event (0.5 = 50 %%)")
+    p.add_argument("--noise-ratio", type=float,
+                   help=f"noise events per signal event (default {DEFAULT_NOISE_RATIO:g} = 50 %%; 0 = none)")
     p.add_argument("--ba-rate-hz", type=float, help="background activity per pixel (instead of a ratio)")
     p.add_argument("--hot-pixels", type=int, default=0, help="hot pixel count (with --ba-rate-hz)")
     p.add_argument("--hot-share", type=float, default=0.1, help="share of noise from hot pixels (ratio)")
+    add_quiet_flag(p)
     p.set_defaults(func=cmd_synth)
 
 
@@ -135,4 +155,5 @@ def add_eval_parser(sub) -> None:
     p.add_argument("--json", metavar="FILE", help="write every result row as JSON")
     p.add_argument("--roc", metavar="FILE.png", help="plot ROC curves")
     p.add_argument("--roc-condition", help="noise condition of the ROC plot, e.g. 100%% or 3Hz (default 100%%)")
+    add_quiet_flag(p)
     p.set_defaults(func=cmd_eval)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..events import NoiseClass
-from .common import UsageError, add_source_flags, open_recording
+from .common import Progress, UsageError, add_quiet_flag, add_source_flags, create_folder, folder_note, open_recording
 
 
 def cmd_info(args) -> int:
@@ -76,11 +76,13 @@ def cmd_convert(args) -> int:
     if out.resolve() == Path(args.source).resolve():
         raise UsageError("convert: the output would overwrite the input")
     source = open_recording(args.source, args)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    created = create_folder(out.parent)
+    progress = Progress(source, quiet=args.quiet, desc="convert")
+    chunks = _reported(source, progress)
     if kind == ".raw":  # streamed: into a side file, renamed once whole, so a failure leaves no valid-looking
         part = out.with_name(out.name + ".part")  # half recording (nor clobbers an older OUT)
         try:
-            n = prophesee_raw.save(part, source, source.geometry, version=f"evt{args.evt}")
+            n = prophesee_raw.save(part, chunks, source.geometry, version=f"evt{args.evt}")
             os.replace(part, out)
         finally:
             part.unlink(missing_ok=True)
@@ -88,7 +90,7 @@ def cmd_convert(args) -> int:
     else:
         from ..events import concat
 
-        events = concat(list(source), source.geometry)  # these writers take whole arrays
+        events = concat(list(chunks), source.geometry)  # these writers take whole arrays
         n = len(events)
         if kind == ".npz":
             native.save(out, events, {"converted_from": str(args.source),
@@ -97,13 +99,27 @@ def cmd_convert(args) -> int:
         else:
             hdf5.save(out, events)
             fmt = "hdf5"
+    progress.done()
     summary = {"source": args.source, "out": str(out), "format": fmt, "events": n,
-               "width": source.geometry.width, "height": source.geometry.height}
+               "width": source.geometry.width, "height": source.geometry.height, "created_folder": created or None}
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"wrote {out} ({fmt}, {source.geometry}): {n:,} events")
+        print(f"wrote {out}{folder_note(created)} ({fmt}, {source.geometry}): {n:,} events")
     return 0
+
+
+def _reported(source, progress):
+    """The source's chunks, telling the progress bar how far into the file they are."""
+    events = 0
+    for chunk in source:
+        events += len(chunk)
+        fraction = getattr(source, "fraction_read", None)
+        if fraction is not None:
+            progress.update(100 * fraction, 100, percent=True)
+        else:
+            progress.update(events, None)
+        yield chunk
 
 
 def add_info_parser(sub) -> None:
@@ -121,4 +137,5 @@ def add_convert_parser(sub) -> None:
     add_source_flags(p)
     p.add_argument("--evt", choices=["3", "2"], default="3", help="EVT version of a .raw output")
     p.add_argument("--json", action="store_true", help="print what was written as JSON")
+    add_quiet_flag(p)
     p.set_defaults(func=cmd_convert)

@@ -9,7 +9,18 @@ from ..events import NoiseClass
 from ..framing import options as framer_options
 from ..framing.render import STYLES
 from ..pipeline import build
-from .common import Progress, UsageError, add_pipeline_flags, add_source_flags, open_recording, pipeline_from_args
+from .common import (
+    STORED_CLASSES_NOTE,
+    Progress,
+    UsageError,
+    add_pipeline_flags,
+    add_quiet_flag,
+    add_source_flags,
+    create_folder,
+    folder_note,
+    open_recording,
+    pipeline_from_args,
+)
 
 
 def cmd_frames(args) -> int:
@@ -27,6 +38,7 @@ def cmd_frames(args) -> int:
     if not kinds_:
         raise UsageError("--framer none: name a framer (fw, fn, oa, adaptive)")
     rows = []
+    created = ""
     for kind in kinds_:
         source = open_recording(args.source, args)
         pipeline = pipeline_from_args(args, source)
@@ -36,10 +48,11 @@ def cmd_frames(args) -> int:
         writer = None
         if args.out:
             out_dir = Path(args.out) / kind if len(kinds_) > 1 else Path(args.out)
+            created = create_folder(out_dir)
             # a representation's arrays as .npz (one per window); frames as PNG pictures
             writer = ArrayWriter(out_dir) if kind in REPRESENTATIONS else PngWriter(out_dir, style=args.style)
             sinks.append(writer)
-        progress = Progress(source)
+        progress = Progress(source, quiet=args.quiet, desc=kind)
 
         def on_batch(batch, fstats=fstats, progress=progress):
             fstats.add_frames(batch.frames)
@@ -55,12 +68,15 @@ def cmd_frames(args) -> int:
                      "png_dir": str(writer.out_dir) if writer else None,
                      "png_written": writer.written if writer else 0,
                      "files": "npz" if kind in REPRESENTATIONS else "png",
-                     "events_dropped": stats.events_dropped, "reports": pipeline.reports()})
+                     "events_dropped": stats.events_dropped, "reports": pipeline.reports(),
+                     "created_folder": created or None})
     if args.json:
         print(json.dumps({"source": args.source, "results": rows}))
         return 0
     print(f"{args.source}: {rows[0]['events_in']:,} events over {rows[0]['duration_us'] / 1e6:.3f} s, "
           f"denoise: {', '.join(rows[0]['denoise']) or 'none'}")
+    if getattr(args, "stored_classes", False):
+        print(STORED_CLASSES_NOTE)
     print("frames closed by the end of the stream (cut short) are written but not counted")
     print(f"{'framer':<10} {'frames':>7} {'rate (fps)':>11} {'mean events':>12} {'variance':>16} {'empty':>6}")
     for r in rows:
@@ -68,7 +84,7 @@ def cmd_frames(args) -> int:
               f"{r['variance_events']:>16,.2f} {r['empty_frames']:>6,}")
         if r["png_dir"]:
             what = "arrays (.npz)" if r["files"] == "npz" else "PNG frames"
-            print(f"  wrote {r['png_written']:,} {what} to {r['png_dir']}")
+            print(f"  wrote {r['png_written']:,} {what} to {r['png_dir']}{folder_note(r['created_folder'])}")
         for line in r["reports"]:
             print(f"  {line}")
     return 0
@@ -85,4 +101,5 @@ def add_parser(sub) -> None:
     p.add_argument("--style", default="paper", choices=STYLES,
                    help="PNG rendering: paper (gray, ON white, OFF black), signed, or a colour map")
     p.add_argument("--json", action="store_true", help="print the statistics as JSON")
+    add_quiet_flag(p)
     p.set_defaults(func=cmd_frames)

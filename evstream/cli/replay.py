@@ -12,13 +12,17 @@ import numpy as np
 from ..framing import options as framer_options
 from ..pipeline import paced
 from .common import (
+    STORED_CLASSES_NOTE,
     Progress,
     StopOnSignal,
     UsageError,
     add_pipeline_flags,
+    add_quiet_flag,
     add_source_flags,
     attach_framer,
     check_numbers,
+    create_folder,
+    folder_note,
     not_the_input,
     open_recording,
     pipeline_from_args,
@@ -79,6 +83,7 @@ def cmd_replay(args) -> int:
             spawn = True
         else:
             save = str(Path("out") / (Path(args.source).stem + ".rrd"))
+    created = create_folder(Path(save).parent) if save else ""
     out = open_output(save=save, spawn=spawn, serve=args.serve, connect=args.viewer, bind=args.bind,
                       memory_limit=args.memory_limit)
     try:
@@ -89,7 +94,7 @@ def cmd_replay(args) -> int:
         if out.web_url:
             print(f"web viewer: {out.web_url}", flush=True)
         lag = LagMeter(args.speed)
-        progress = Progress(source)
+        progress = Progress(source, quiet=args.quiet)
 
         def on_batch(batch):
             lag(batch)
@@ -102,13 +107,15 @@ def cmd_replay(args) -> int:
         stopped_by = signal.Signals(stop.signum).name if stop.signum else None
         summary = {**stats.as_dict(), "points_logged": sink.points_logged, "points_dropped": sink.points_dropped,
                    **lag.as_dict(), "output": out.mode, "rrd": save, "grpc_url": out.grpc_url,
-                   "web_url": out.web_url, "stopped_by": stopped_by}
+                   "web_url": out.web_url, "stopped_by": stopped_by, "created_folder": created or None}
         if args.json:
             print(json.dumps(summary), flush=True)
         else:
             print(summary_line(stats))
             for line in pipeline.reports():  # what a transform dropped (the rate limiter)
                 print(line)
+            if getattr(args, "stored_classes", False):
+                print(STORED_CLASSES_NOTE)
             shown = sink.points_logged + sink.points_dropped
             if sink.points_dropped:
                 burst = int(sink.budget.capacity)  # saved-up points: a short recording draws more than rate x time
@@ -120,7 +127,7 @@ def cmd_replay(args) -> int:
                 print(f"real-time lag: median {d['lag_median_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "
                       f"max {d['lag_max_ms']:.1f} ms, at the end {d['lag_end_ms']:.1f} ms")
             if save:
-                print(f"wrote {save} — open it with:  {rerun_command()} {save}   "
+                print(f"wrote {save}{folder_note(created)} — open it with:  {rerun_command()} {save}   "
                       "(or: evstream replay --spawn / --serve)")
         sys.stdout.flush()
         if stopped_by:
@@ -163,5 +170,6 @@ def add_parser(sub) -> None:
                    help="most 3D points per second of event time (0 = every event); frames and stats use all")
     p.add_argument("--slab-ms", type=float, default=100.0, help="depth of the 3D view's time slab")
     p.add_argument("--json", action="store_true", help="print run statistics as JSON")
+    add_quiet_flag(p)
     framer_options.add_framer_flags(p)
     p.set_defaults(func=cmd_replay)
