@@ -62,19 +62,23 @@ class Representation(Frame):
 @njit(cache=True, nogil=True)
 def voxel_kernel(buf_t, buf_f, a, b, t_start, t_end, bins, hw, out):
     """Add events [a, b) of the buffer to the flat voxel grid `out` (bins·H·W): polarity ±1 shared
-    bilinearly between the two bins around t* = (bins − 1)(t − t_start) / (t_end − 1 − t_start)."""
+    bilinearly between the two bins around t* = (bins − 1)(t − t_start) / (t_end − 1 − t_start).
+    Events lie in [t_start, t_end), so t* <= bins − 1 and only the last bin has no bin after it.
+    Polarity and pixel come from the flat index without a branch (they are random per event)."""
     scale = (bins - 1) / max(1, t_end - 1 - t_start)
+    last = bins - 1
     for j in range(a, b):
-        f = buf_f[j]
+        f = np.intp(buf_f[j])
         on = f >= hw
-        pix = f - hw if on else f
-        v = 1.0 if on else -1.0
+        pix = f - hw * on
+        v = np.float32(2 * on - 1)
         tn = (buf_t[j] - t_start) * scale
-        lo = min(int(tn), bins - 1)
-        w_hi = tn - lo
-        out[lo * hw + pix] += v * (1.0 - w_hi)
-        if lo + 1 < bins:
-            out[(lo + 1) * hw + pix] += v * w_hi
+        lo = np.intp(tn)
+        w_hi = np.float32(tn - lo)
+        k = lo * hw + pix
+        out[k] += v - v * w_hi
+        if lo < last:
+            out[k + hw] += v * w_hi
 
 
 @njit(cache=True, nogil=True)
@@ -114,50 +118,58 @@ def surface(last_t: np.ndarray, t_now: int, tau_us: float, out: np.ndarray) -> N
 # -- the buffered events of the open windows ------------------------------------------------------
 class _EventBuffer:
     """Counted events in stream order (time, flat index p·H·W + y·W + x), addressed by absolute index
-    (events since the stream began); `drop_before(k)` forgets those below k. Grows by doubling, keeps
-    half free so compaction copies rarely: bounded by the events the open windows still need."""
+    (events since the stream began); `drop_before(k)` forgets those below k by moving a cursor, and
+    the held events move to the front only when the space after them runs out (a copy per push would
+    move a whole window's events for every chunk). Grows by doubling, keeping half free: bounded by
+    the events the open windows still need."""
 
     def __init__(self, flat_dtype):
         self.t = np.zeros(1 << 12, np.int64)
         self.f = np.zeros(1 << 12, flat_dtype)
-        self.base = 0  # absolute index of t[0]
-        self.n = 0  # events held: absolute indices [base, base + n)
+        self.origin = 0  # absolute index of slot 0
+        self.lo = 0  # held events: slots [lo, hi)
+        self.hi = 0
+
+    @property
+    def base(self) -> int:
+        """Absolute index of the first held event."""
+        return self.origin + self.lo
 
     @property
     def end(self) -> int:
-        return self.base + self.n
+        return self.origin + self.hi
 
     def append(self, chunk: EventChunk, cls, use_cls: bool, width: int, hw: int) -> None:
         idx = np.flatnonzero(cls == 0) if use_cls else None
         k = len(chunk) if idx is None else len(idx)
-        if self.n + k > len(self.t):
-            size = max(2 * len(self.t), 2 * (self.n + k))
-            self.t = np.concatenate((self.t[: self.n], np.zeros(size - self.n, np.int64)))
-            self.f = np.concatenate((self.f[: self.n], np.zeros(size - self.n, self.f.dtype)))
-        at = self.n
+        if self.hi + k > len(self.t):
+            live = self.hi - self.lo
+            if 2 * (live + k) > len(self.t):
+                size = max(2 * len(self.t), 2 * (live + k))
+                t, f = np.zeros(size, np.int64), np.zeros(size, self.f.dtype)
+            else:
+                t, f = self.t, self.f
+            t[:live] = self.t[self.lo : self.hi]  # the source lies after the target: a forward copy is safe
+            f[:live] = self.f[self.lo : self.hi]
+            self.t, self.f = t, f
+            self.origin += self.lo
+            self.lo, self.hi = 0, live
+        at = self.hi
         if idx is None:
             self.t[at : at + k] = chunk.t
             flat_index(chunk.x, chunk.y, chunk.p, 0, k, width, hw, self.f, at)
         else:
             self.t[at : at + k] = chunk.t[idx]
             flat_index_of(chunk.x, chunk.y, chunk.p, idx, width, hw, self.f, at)
-        self.n += k
+        self.hi += k
 
     def index_of_time(self, t: int, low: int) -> int:
         """The absolute index of the first held event at or after `low` with time >= t."""
-        a = low - self.base
-        return low + int(np.searchsorted(self.t[a : self.n], t, side="left"))
+        a = low - self.origin
+        return low + int(np.searchsorted(self.t[a : self.hi], t, side="left"))
 
     def drop_before(self, k: int) -> None:
-        k = min(max(k, self.base), self.end)
-        gone = k - self.base
-        if gone == 0:
-            return
-        keep = self.n - gone
-        if keep:
-            self.t[:keep] = self.t[gone : self.n]
-            self.f[:keep] = self.f[gone : self.n]
-        self.base, self.n = k, keep
+        self.lo = min(max(k, self.base), self.end) - self.origin
 
 
 # -- framers --------------------------------------------------------------------------------------
@@ -291,7 +303,7 @@ class RepresentationFramer(FramerBase):
         return np.zeros((channels, g.height, g.width), np.float32)
 
     def _local(self, a: int, b: int) -> tuple[int, int]:
-        base = self._buf.base
+        base = self._buf.origin
         return a - base, b - base
 
 
