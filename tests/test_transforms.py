@@ -183,11 +183,13 @@ def test_kernels_match_plain_python(seed, n):
     rng = np.random.default_rng(seed)
     x, y = rng.integers(0, 40, n).astype(np.uint16), rng.integers(0, 30, n).astype(np.uint16)
     x0, y0, w, h = (int(v) for v in rng.integers(0, 20, 4) + [0, 0, 1, 1])
-    keep, ox, oy = np.empty(n + 1, np.intp), np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16)
-    k = crop_kernel(x, y, x0, y0, w, h, keep, ox, oy)
-    ref = [(i, int(x[i]) - x0, int(y[i]) - y0) for i in range(n)
+    tt, pp = np.sort(rng.integers(0, 10**6, n)).astype(np.int64), rng.integers(0, 2, n).astype(np.uint8)
+    out = (np.empty(n + 1, np.int64), np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16),
+           np.empty(n + 1, np.uint8), np.empty(n + 1, np.intp))
+    k = crop_kernel(tt, x, y, pp, x0, y0, w, h, *out)
+    ref = [(int(tt[i]), int(x[i]) - x0, int(y[i]) - y0, int(pp[i]), i) for i in range(n)
            if x0 <= x[i] < x0 + w and y0 <= y[i] < y0 + h]
-    assert list(zip(keep[:k].tolist(), ox[:k].tolist(), oy[:k].tolist())) == ref
+    assert list(zip(*(a[:k].tolist() for a in out))) == ref
 
     t = np.cumsum(rng.integers(0, 500, n)).astype(np.int64)
     rate, cap = int(rng.integers(1, 10_000)), int(rng.integers(1, 5)) * UNIT

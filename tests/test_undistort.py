@@ -17,7 +17,7 @@ from evstream.testing import (
     assert_chunk_invariant,
     random_stream,
 )
-from evstream.transforms.undistort import lookup_table, undistort_kernel
+from evstream.transforms.undistort import lookup_table, undistort_kernel, unpack
 
 cv2 = pytest.importorskip("cv2", reason="opencv-python-headless (a dev dependency) checks the camera models")
 
@@ -60,7 +60,7 @@ def test_points_match_opencv(name):
 @pytest.mark.parametrize("name", sorted(CAMERAS))
 def test_lookup_table_is_opencvs_nearest_pixel(name):
     camera = CAMERAS[name]
-    lut_x, lut_y = lookup_table(camera, DAVIS)
+    lut_x, lut_y = unpack(lookup_table(camera, DAVIS))
     v, u = np.divmod(np.arange(DAVIS.n_pixels, dtype=np.float64), DAVIS.width)
     ox, oy = opencv(camera, u, v)
     rx, ry = np.rint(ox), np.rint(oy)
@@ -90,14 +90,18 @@ def test_forward_model_round_trips():
 def test_kernel_matches_plain_python(seed, n):
     rng = np.random.default_rng(seed)
     w, h = 11, 7
-    lut_x = np.where(rng.random(w * h) < 0.2, -1, rng.integers(0, w, w * h)).astype(np.int32)
-    lut_y = np.where(lut_x < 0, -1, rng.integers(0, h, w * h)).astype(np.int32)
+    lut_x = np.where(rng.random(w * h) < 0.2, -1, rng.integers(0, w, w * h))
+    lut_y = np.where(lut_x < 0, -1, rng.integers(0, h, w * h))
+    lut = np.where(lut_x < 0, -1, lut_x | (lut_y << 16)).astype(np.int32)
+    t = np.sort(rng.integers(0, 10**6, n)).astype(np.int64)
     x, y = rng.integers(0, w, n).astype(np.uint16), rng.integers(0, h, n).astype(np.uint16)
-    keep, ox, oy = np.empty(n + 1, np.intp), np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16)
-    k = undistort_kernel(x, y, w, lut_x, lut_y, keep, ox, oy)
-    ref = [(i, int(lut_x[y[i] * w + x[i]]), int(lut_y[y[i] * w + x[i]])) for i in range(n)
+    p = rng.integers(0, 2, n).astype(np.uint8)
+    out = (np.empty(n + 1, np.int64), np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16),
+           np.empty(n + 1, np.uint8), np.empty(n + 1, np.intp))
+    k = undistort_kernel(t, x, y, p, w, lut, *out)
+    ref = [(int(t[i]), int(lut_x[y[i] * w + x[i]]), int(lut_y[y[i] * w + x[i]]), int(p[i]), i) for i in range(n)
            if lut_x[y[i] * w + x[i]] >= 0]
-    assert list(zip(keep[:k].tolist(), ox[:k].tolist(), oy[:k].tolist())) == ref
+    assert list(zip(*(a[:k].tolist() for a in out))) == ref
 
 
 # -- camera_info and the stage --------------------------------------------------------------------
@@ -138,7 +142,7 @@ def test_camera_info_yaml(tmp_path):
     b = build("stage", {"kind": "undistort", "fx": 310.0, "fy": 305.0, "cx": 170.5, "cy": 128.2,
                         "distortion": [-0.32, 0.12, 0.0012, -0.0007, -0.015]})(s)
     assert np.array_equal(a.to_structured(), b.to_structured()) and 0 < len(a) < len(s)
-    lut_x, lut_y = lookup_table(ref, DAVIS)
+    lut_x, lut_y = unpack(lookup_table(ref, DAVIS))
     f = s.y.astype(int) * DAVIS.width + s.x
     kept = lut_x[f] >= 0
     assert np.array_equal(a.x, lut_x[f][kept]) and np.array_equal(a.t, s.t[kept])

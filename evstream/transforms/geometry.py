@@ -8,7 +8,7 @@ Conventions (x column, y row, y pointing down, as in the sensor's images):
 - `downsample` by an integer factor k: (x // k, y // k) on a ⌈W/k⌉×⌈H/k⌉ sensor, events kept (k² pixels
   pool into one; tonic's spatial Downsample does the same);
 - `crop` keeps the events in [x0, x0 + width) × [y0, y0 + height), shifted to the region's origin: it
-  drops the others. One numba pass selects and shifts (branch-free compaction).
+  drops the others. One numba pass selects, shifts and copies (branch-free compaction).
 
 Only `crop` drops events; all but `flip` (and a 180° turn) change the geometry or its meaning.
 Stateless per event: chunk-invariant and causal by construction, memory O(chunk).
@@ -23,21 +23,23 @@ from numba import njit
 
 from ..events import EventChunk, Geometry
 from ..pipeline import register
-from .base import Transform, check_int, select
+from .base import Transform, check_int
 
 
 @njit(cache=True, nogil=True)
-def crop_kernel(x, y, x0, y0, width, height, keep, out_x, out_y):
-    """Indices (into `keep`) and shifted coordinates of the events inside the region; returns how many.
-    Every event is written and the end advances on a match (no branch), so the outputs hold one spare
-    cell; the unsigned compare `x − x0 < width` tests both sides at once."""
+def crop_kernel(t, x, y, p, x0, y0, width, height, out_t, out_x, out_y, out_p, keep):
+    """Copy the events inside the region to the out arrays (one spare cell each), shifted to its origin,
+    and their indices to `keep`; returns how many. Every event is written and the end advances on a
+    match (no branch); the unsigned compare `x − x0 < width` tests both sides at once."""
     k = 0
-    for i in range(len(x)):
+    for i in range(len(t)):
         dx = np.int64(x[i]) - x0
         dy = np.int64(y[i]) - y0
-        keep[k] = i
+        out_t[k] = t[i]
         out_x[k] = dx
         out_y[k] = dy
+        out_p[k] = p[i]
+        keep[k] = i
         k += (np.uint64(dx) < np.uint64(width)) & (np.uint64(dy) < np.uint64(height))
     return k
 
@@ -68,10 +70,13 @@ class Crop(Transform):
     def __call__(self, chunk: EventChunk) -> EventChunk:
         g = self.out_geometry(chunk.geometry)
         n = len(chunk)
-        keep = np.empty(n + 1, np.intp)
-        out_x, out_y = np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16)
-        k = crop_kernel(chunk.x, chunk.y, self.x0, self.y0, self.width, self.height, keep, out_x, out_y)
-        return select(chunk, keep[:k], g, out_x[:k], out_y[:k])
+        out = (np.empty(n + 1, np.int64), np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16),
+               np.empty(n + 1, np.uint8), np.empty(n + 1, np.intp))
+        k = crop_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self.x0, self.y0, self.width, self.height, *out)
+        keep = out[4][:k]
+        return chunk.replace(t=out[0][:k], x=out[1][:k], y=out[2][:k], p=out[3][:k], geometry=g,
+                             cls=None if chunk.cls is None else chunk.cls[keep],
+                             label=None if chunk.label is None else chunk.label[keep])
 
 
 @register("stage", "flip")

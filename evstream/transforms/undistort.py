@@ -6,7 +6,7 @@ chunk): each pixel's undistorted position, rounded to the nearest pixel, or "dro
 outside the sensor (or the model has no undistorted point for it). Per event it is then one table read
 in a numba pass that also compacts the kept events. Several distorted pixels may land on one pixel and
 some pixels receive none (holes): an event stream has no pixel grid to interpolate on. Memory: two
-int32 per pixel; stateless per event, so chunk-invariant and causal.
+one int32 per pixel; stateless per event, so chunk-invariant and causal.
 """
 
 from __future__ import annotations
@@ -19,35 +19,43 @@ from numba import njit
 from ..camera import CameraModel, from_camera_info
 from ..events import EventChunk, Geometry
 from ..pipeline import register
-from .base import Transform, select
+from .base import Transform
 
 
 @njit(cache=True, nogil=True)
-def undistort_kernel(x, y, width, lut_x, lut_y, keep, out_x, out_y):
-    """Indices (into `keep`) and new coordinates of the events whose pixel has a target (lut_x >= 0);
-    returns how many. Branch-free: every event is written, the end advances when kept."""
+def undistort_kernel(t, x, y, p, width, lut, out_t, out_x, out_y, out_p, keep):
+    """Copy the events whose pixel has a target (lut >= 0) to the out arrays (one spare cell each) with
+    their new coordinates, and their indices to `keep`; returns how many. `lut` packs a pixel's target
+    as x | y << 16 (one random read per event, not two). Branch-free: every event is written, the end
+    advances when kept."""
     k = 0
-    for i in range(len(x)):
-        f = np.intp(y[i]) * width + np.intp(x[i])
-        tx = lut_x[f]
+    for i in range(len(t)):
+        target = lut[np.intp(y[i]) * width + np.intp(x[i])]
+        out_t[k] = t[i]
+        out_x[k] = target & 0xFFFF
+        out_y[k] = (target >> 16) & 0xFFFF
+        out_p[k] = p[i]
         keep[k] = i
-        out_x[k] = tx
-        out_y[k] = lut_y[f]
-        k += tx >= 0
+        k += target >= 0
     return k
 
 
-def lookup_table(camera: CameraModel, geometry: Geometry) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel (flat y·W + x) the undistorted pixel's column and row (int32), −1 where dropped."""
+def lookup_table(camera: CameraModel, geometry: Geometry) -> np.ndarray:
+    """Per pixel (flat y·W + x) its undistorted pixel as int32 x | y << 16, or −1 where dropped."""
     w, h = geometry.width, geometry.height
     v, u = np.divmod(np.arange(w * h, dtype=np.float64), w)
     ux, uy = camera.undistort_points(u, v)
     with np.errstate(invalid="ignore"):
         rx, ry = np.rint(ux), np.rint(uy)  # nearest pixel (half to even, as numpy rounds)
         inside = (rx >= 0) & (rx < w) & (ry >= 0) & (ry < h)
-    lut_x = np.where(inside, rx, -1).astype(np.int32)
-    lut_y = np.where(inside, ry, -1).astype(np.int32)
-    return lut_x, lut_y
+    lut = np.full(w * h, -1, np.int64)
+    lut[inside] = rx[inside].astype(np.int64) | (ry[inside].astype(np.int64) << 16)
+    return lut.astype(np.int32)  # y < 2^15 on any real sensor: the packed value stays positive
+
+
+def unpack(lut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A packed table as (x, y) columns, −1 where dropped."""
+    return np.where(lut < 0, -1, lut & 0xFFFF), np.where(lut < 0, -1, lut >> 16)
 
 
 @register("stage", "undistort")
@@ -90,10 +98,15 @@ class Undistort(Transform):
         g = chunk.geometry
         if g != self._geometry:  # once per stream: the table for this sensor
             self.out_geometry(g)
-            self._lut_x, self._lut_y = lookup_table(self.camera, g)
+            if g.height >= 1 << 15:
+                raise ValueError(f"undistort: a {g} sensor is too tall for the packed table (rows < 32768)")
+            self._lut = lookup_table(self.camera, g)
             self._geometry = g
         n = len(chunk)
-        keep = np.empty(n + 1, np.intp)
-        out_x, out_y = np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16)
-        k = undistort_kernel(chunk.x, chunk.y, g.width, self._lut_x, self._lut_y, keep, out_x, out_y)
-        return select(chunk, keep[:k], g, out_x[:k], out_y[:k])
+        out = (np.empty(n + 1, np.int64), np.empty(n + 1, np.uint16), np.empty(n + 1, np.uint16),
+               np.empty(n + 1, np.uint8), np.empty(n + 1, np.intp))
+        k = undistort_kernel(chunk.t, chunk.x, chunk.y, chunk.p, g.width, self._lut, *out)
+        keep = out[4][:k]
+        return chunk.replace(t=out[0][:k], x=out[1][:k], y=out[2][:k], p=out[3][:k],
+                             cls=None if chunk.cls is None else chunk.cls[keep],
+                             label=None if chunk.label is None else chunk.label[keep])
