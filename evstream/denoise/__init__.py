@@ -11,6 +11,7 @@ from . import (  # noqa: F401  (importing a module registers its stages)
     dwf,
     hotpixel,
     khodamoradi,
+    learned,
     oracle,
     refractory,
     stcf,

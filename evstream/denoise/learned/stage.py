@@ -1,0 +1,86 @@
+"""The learned denoise stage: the fused feature kernel scoring each event with a trained model.
+
+`--denoise learned` uses the shipped model (trained on the synthetic scenes and permissively licensed
+recordings, docs/learned.md); `model = "PATH.npz"` takes one made by `evstream train`. `keep` picks the
+operating point: the fraction of the signal the model's calibration expects it to keep (default: the
+one it was trained for). Events scored below the threshold are BACKGROUND, or HOT_PIXEL when their
+pixel fired `hot_min` times or more in the last 20 ms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...events import EventChunk, NoiseClass
+from ...pipeline import register
+from ..base import InPlaceClassifier, grow_fifo
+from .features import AGE_LOG1P_MS, HISTORY_US, LOG1P, N_FEATURES, feature_kernel, new_state
+from .model import Model, load
+
+
+@register("stage", "learned")
+@dataclass
+class LearnedFilter(InPlaceClassifier):
+    """A trained per-event score over causal features; SIGNAL iff the score reaches the threshold
+    that keeps the fraction `keep` of the signal. Score (`classify_scored`): the model's output."""
+
+    model: str | Model | None = None
+    keep: float | None = None
+    hot_min: int = 4
+    noise_class = NoiseClass.BACKGROUND
+    _state: dict | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self):
+        m = self.model if isinstance(self.model, Model) else load(self.model)
+        if self.keep is not None and not (isinstance(self.keep, (int, float)) and 0 < self.keep <= 1):
+            raise ValueError(f"learned: keep must be a fraction in (0, 1], got {self.keep!r}")
+        if not isinstance(self.hot_min, int) or self.hot_min < 1:
+            raise ValueError(f"learned: hot_min must be a positive integer, got {self.hot_min!r}")
+        self._model = m
+        self._weights = m.folded()
+        self._threshold = m.threshold(self.keep)
+
+    @property
+    def history_us(self) -> int:
+        """Warm-up before decisions are at full strength: the longest look-back of a feature."""
+        return HISTORY_US
+
+    @property
+    def threshold(self) -> float:
+        return self._threshold
+
+    def params(self) -> dict:
+        model = self.model
+        if isinstance(model, Model):
+            model = model.meta.get("name", "<in memory>")
+        return {"model": model, "keep": self.keep, "hot_min": self.hot_min}
+
+    def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool,
+             features: np.ndarray | None = None) -> np.ndarray:
+        s = self._state
+        g = chunk.geometry
+        if s is None or s["geometry"] != g:
+            s = self._state = {**new_state(g.width, g.height), "geometry": g}
+        n = len(chunk)
+        score = np.zeros(n if want_score else 0, np.float64)
+        feats = features if features is not None else np.zeros((0, N_FEATURES))
+        w1, b1, w2, b2 = self._weights
+        kernel = feature_kernel(self._model.n_hidden, want_score, features is not None, not codes.any())
+        i = 0
+        while True:
+            i = kernel(chunk.t, chunk.x, chunk.y, chunk.p, i, codes, self._threshold, self.hot_min,
+                       s["last"], s["hsum"], s["own"], s["block"], s["block_log_scale"],
+                       s["offsets"], s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_pix"],
+                       s["fifo_state"], g.width, g.height, w1, b1, w2, b2, score, feats, LOG1P, AGE_LOG1P_MS)
+            if i >= n:
+                return score
+            grow_fifo(s, ("fifo_t", "fifo_pos", "fifo_pix"))
+
+    def features(self, chunk: EventChunk) -> np.ndarray:
+        """The feature matrix of an unclassified chunk (advances the state like `classify`)."""
+        codes = np.zeros(len(chunk), np.uint8)
+        out = np.zeros((len(chunk), N_FEATURES))
+        self._run(chunk, codes, want_score=False, features=out)
+        return out

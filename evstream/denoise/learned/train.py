@@ -1,0 +1,288 @@
+"""Training the learned denoiser on a user's own recordings (`evstream train`).
+
+1. Each recording's own events are the signal (its real hot pixels set aside, as `evstream eval`
+   does; a synthetic recording's SIGNAL-labelled events); labelled noise is injected with the
+   project's noise model (`evstream.noise`) at several noise ratios and background rates.
+2. The feature kernel runs over each noisy stream (the same kernel the stage scores with); warm-state
+   events are subsampled to the same number per recording and condition, so that no recording or
+   noise level dominates the fit.
+3. Fit, in numpy (no extra dependency; both fits are small and deterministic for a seed): logistic
+   regression by Newton's method with a little L2, or a one-hidden-layer ReLU MLP by full-batch Adam.
+4. Calibrate the operating point on recordings the scoring model has not seen: with two or more
+   recordings, each one is scored by a model fitted on the others, and the threshold keeping a
+   fraction k of the signal is taken per (recording, condition) in units of that fold model's
+   training-score quantiles; the final model's thresholds are its own training quantiles at the mean
+   of those (a threshold fixed on the training data alone keeps less than asked on new recordings).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...evaluation import Condition, as_signal
+from ...events import EventChunk, NoiseClass
+from ...noise import inject
+from .features import FEATURE_VERSION, FEATURES, HISTORY_US, N_FEATURES
+from .model import Model
+
+TRAIN_CONDITIONS = (Condition(noise_ratio=0.5), Condition(noise_ratio=1.0), Condition(noise_ratio=2.0),
+                    Condition(ba_rate_hz=1.0), Condition(ba_rate_hz=3.0), Condition(ba_rate_hz=5.0))
+KEEP_GRID = np.round(np.arange(0.50, 0.991, 0.01), 2)
+SEED_BASE = 1000  # training noise seeds: far from the evaluation's 0, 1, ...
+
+
+@dataclass
+class Samples:
+    """Feature rows with labels (1 = signal) and the recording and condition each came from."""
+
+    X: np.ndarray
+    y: np.ndarray
+    group: np.ndarray      # index of the recording
+    cond: np.ndarray       # index of the condition
+    names: list[str]
+
+    def subset(self, keep: np.ndarray) -> Samples:
+        return Samples(self.X[keep], self.y[keep], self.group[keep], self.cond[keep], self.names)
+
+
+def blank_model() -> Model:
+    """A model that scores 0 everywhere: runs the feature kernel for training."""
+    return Model(w1=np.zeros((1, N_FEATURES)), b1=np.zeros(1), w2=np.zeros(1), b2=0.0,
+                 mean=np.zeros(N_FEATURES), std=np.ones(N_FEATURES), keep_grid=np.array([0.5]),
+                 threshold_grid=np.array([0.0]), meta={"kind": "logistic"})
+
+
+def features_of(noisy: EventChunk) -> np.ndarray:
+    from .stage import LearnedFilter
+
+    return LearnedFilter(model=blank_model()).features(noisy.replace(label=None, cls=None))
+
+
+def samples(recordings: dict[str, EventChunk], conditions: Iterable[Condition] = TRAIN_CONDITIONS,
+            seeds: Iterable[int] = (SEED_BASE,), per_stream: int = 20_000, rng_seed: int = 0,
+            progress: Callable[[str], None] | None = None) -> Samples:
+    """Labelled feature rows of every recording × condition × seed, `per_stream` warm events each."""
+    rng = np.random.default_rng(rng_seed)
+    conditions = list(conditions)
+    Xs, ys, gs, cs = [], [], [], []
+    names = list(recordings)
+    for gi, (name, events) in enumerate(recordings.items()):
+        signal, _ = as_signal(events)
+        if len(signal) < 100:
+            raise ValueError(f"{name}: fewer than 100 signal events, nothing to learn from")
+        for ci, cond in enumerate(conditions):
+            for seed in seeds:
+                if progress:
+                    progress(f"{name} {cond.name} seed {seed}")
+                noisy = inject(signal, cond.spec(), seed=seed, t_start_us=int(signal.t[0]),
+                               t_stop_us=int(signal.t[-1]) + 1)
+                X = features_of(noisy)
+                t0, t1 = int(noisy.t[0]), int(noisy.t[-1])
+                warm = np.flatnonzero(noisy.t >= t0 + min(HISTORY_US, int(0.3 * (t1 - t0))))
+                pick = np.sort(rng.choice(warm, min(per_stream, len(warm)), replace=False))
+                Xs.append(X[pick])
+                ys.append((noisy.label[pick] == NoiseClass.SIGNAL).astype(np.float64))
+                gs.append(np.full(len(pick), gi))
+                cs.append(np.full(len(pick), ci))
+    return Samples(np.concatenate(Xs), np.concatenate(ys), np.concatenate(gs), np.concatenate(cs), names)
+
+
+# -- fitting ------------------------------------------------------------------------------------------
+def _standardise(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    mean = X.mean(axis=0)
+    std = X.std(axis=0)
+    return mean, np.where(std > 1e-9, std, 1.0)
+
+
+def fit_logistic(Z: np.ndarray, y: np.ndarray, l2: float = 1e-3, iters: int = 30) -> tuple[np.ndarray, float]:
+    """Newton's method (IRLS) on standardised features; returns (w, b)."""
+    n, d = Z.shape
+    A = np.hstack([Z, np.ones((n, 1))])
+    w = np.zeros(d + 1)
+    reg = l2 * n * np.eye(d + 1)
+    reg[d, d] = 0.0
+    for _ in range(iters):
+        z = np.clip(A @ w, -30, 30)
+        pr = 1.0 / (1.0 + np.exp(-z))
+        grad = A.T @ (pr - y) + reg @ w
+        H = (A * (pr * (1 - pr))[:, None]).T @ A + reg
+        step = np.linalg.solve(H, grad)
+        w -= step
+        if np.abs(step).max() < 1e-8:
+            break
+    return w[:d], float(w[d])
+
+
+def fit_mlp(Z: np.ndarray, y: np.ndarray, hidden: int, seed: int = 0, epochs: int = 60, batch: int = 4096,
+            lr: float = 3e-3, l2: float = 1e-5) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """One hidden ReLU layer, logistic loss, minibatch Adam (numpy, seeded); returns (w1, b1, w2, b2)."""
+    rng = np.random.default_rng(seed)
+    n, d = Z.shape
+    params = [rng.normal(0, np.sqrt(2.0 / d), (hidden, d)), np.zeros(hidden),
+              rng.normal(0, np.sqrt(1.0 / hidden), hidden), np.zeros(1)]
+    m = [np.zeros_like(p) for p in params]
+    v = [np.zeros_like(p) for p in params]
+    step = 0
+    for _ in range(epochs):
+        order = rng.permutation(n)
+        for a in range(0, n, batch):
+            idx = order[a : a + batch]
+            zb, yb = Z[idx], y[idx]
+            w1, b1, w2, b2 = params
+            pre = zb @ w1.T + b1
+            h = np.maximum(pre, 0.0)
+            out = h @ w2 + b2[0]
+            pr = 1.0 / (1.0 + np.exp(-np.clip(out, -30, 30)))
+            g_out = (pr - yb) / len(idx)
+            g_w2 = h.T @ g_out + l2 * w2
+            g_b2 = np.array([g_out.sum()])
+            g_h = np.outer(g_out, w2) * (pre > 0)
+            g_w1 = g_h.T @ zb + l2 * w1
+            g_b1 = g_h.sum(axis=0)
+            step += 1
+            for k, g in enumerate((g_w1, g_b1, g_w2, g_b2)):
+                m[k] = 0.9 * m[k] + 0.1 * g
+                v[k] = 0.999 * v[k] + 0.001 * g * g
+                mh = m[k] / (1 - 0.9**step)
+                vh = v[k] / (1 - 0.999**step)
+                params[k] = params[k] - lr * mh / (np.sqrt(vh) + 1e-8)
+    w1, b1, w2, b2 = params
+    return w1, b1, w2, float(b2[0])
+
+
+def _fit(S: Samples, kind: str, hidden: int, seed: int) -> Model:
+    mean, std = _standardise(S.X)
+    Z = (S.X - mean) / std
+    if kind == "logistic":
+        w, b = fit_logistic(Z, S.y)
+        w1, b1, w2, b2 = w[None, :], np.array([b]), np.zeros(1), 0.0
+    elif kind == "mlp":
+        w1, b1, w2, b2 = fit_mlp(Z, S.y, hidden, seed=seed)
+    else:
+        raise ValueError(f"model kind must be 'logistic' or 'mlp', got {kind!r}")
+    # float32 precision on disk and in use: the same bytes on every machine that fits the same numbers
+    f32 = lambda a: np.asarray(a, np.float32).astype(np.float64)  # noqa: E731
+    return Model(w1=f32(w1), b1=f32(b1), w2=f32(w2), b2=float(np.float32(b2)), mean=f32(mean), std=f32(std),
+                 keep_grid=KEEP_GRID.copy(), threshold_grid=np.zeros(len(KEEP_GRID)),
+                 meta={"kind": kind, "hidden": hidden if kind == "mlp" else 0})
+
+
+def _signal_quantile_levels(model: Model, S: Samples) -> np.ndarray:
+    """Per (recording, condition) signal scores' thresholds for KEEP_GRID, as rows."""
+    score = model.score(S.X)
+    rows = []
+    for g in np.unique(S.group):
+        for c in np.unique(S.cond):
+            sel = (S.group == g) & (S.cond == c) & (S.y == 1)
+            if sel.sum() >= 50:
+                rows.append(np.quantile(score[sel], 1 - KEEP_GRID))
+    return np.array(rows)
+
+
+def _keep_at(model: Model, S: Samples, thresholds: np.ndarray) -> np.ndarray:
+    """Mean over (recording, condition) of the signal kept at each threshold."""
+    score = model.score(S.X)
+    out = []
+    for g in np.unique(S.group):
+        for c in np.unique(S.cond):
+            sel = (S.group == g) & (S.cond == c) & (S.y == 1)
+            if sel.sum() >= 50:
+                out.append((score[sel][:, None] >= thresholds[None, :]).mean(axis=0))
+    return np.mean(out, axis=0)
+
+
+def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model) -> tuple[np.ndarray, dict]:
+    """Thresholds of `final` for KEEP_GRID that transfer to recordings it was not fitted on.
+
+    With one recording: the training quantiles themselves. With more: for each recording, a model fitted
+    on the others gives the signal kept on it at each of that model's own training thresholds; the
+    training level l(k) whose held-out keep averages k is then applied to `final`'s training scores."""
+    own_levels = np.median(_signal_quantile_levels(final, S), axis=0)
+    groups = np.unique(S.group)
+    if len(groups) < 2:
+        return own_levels, {"calibration": "training quantiles (one recording)"}
+    fine = np.round(np.arange(0.30, 0.9991, 0.0025), 4)  # training-level keeps to search
+    held = []
+    for g in groups:
+        fold = _fit(S.subset(S.group != g), kind, hidden, seed)
+        train_part = S.subset(S.group != g)
+        thr = np.median(_fold_levels(fold, train_part, fine), axis=0)
+        held.append(_keep_at(fold, S.subset(S.group == g), thr))
+    held_keep = np.mean(held, axis=0)  # held-out keep at each training-level keep in `fine`
+    # monotone: a higher training keep never lowers the held-out keep
+    held_keep = np.maximum.accumulate(held_keep)
+    level = np.interp(KEEP_GRID, held_keep, fine)
+    final_thr = np.median(_fold_levels(final, S, level), axis=0)
+    info = {"calibration": "cross-fitted over recordings",
+            "held_out_keep_at_training_keep": {f"{k:.2f}": round(float(np.interp(k, fine, held_keep)), 4)
+                                               for k in (0.8, 0.85, 0.9)}}
+    return final_thr, info
+
+
+def _fold_levels(model: Model, S: Samples, keeps: np.ndarray) -> np.ndarray:
+    score = model.score(S.X)
+    rows = []
+    for g in np.unique(S.group):
+        for c in np.unique(S.cond):
+            sel = (S.group == g) & (S.cond == c) & (S.y == 1)
+            if sel.sum() >= 50:
+                rows.append(np.quantile(score[sel], 1 - np.asarray(keeps)))
+    return np.array(rows)
+
+
+def auc(score: np.ndarray, y: np.ndarray) -> float:
+    from ...metrics import roc_auc
+
+    return float(roc_auc(np.where(y == 1, 0, 1).astype(np.uint8), score))
+
+
+def fit(S: Samples, kind: str = "logistic", hidden: int = 16, keep: float = 0.85, seed: int = 0,
+        calibrate_folds: bool = True) -> Model:
+    """A model fitted on all samples, its operating points calibrated (see `calibrate`)."""
+    model = _fit(S, kind, hidden, seed)
+    if calibrate_folds:
+        thr, info = calibrate(S, kind, hidden, seed, model)
+    else:
+        thr, info = np.median(_signal_quantile_levels(model, S), axis=0), {"calibration": "training quantiles"}
+    model.threshold_grid = np.asarray(thr, np.float32).astype(np.float64)
+    model.meta.update({"keep": keep, "feature_version": FEATURE_VERSION, "features": list(FEATURES), **info,
+                       "training_auc": round(auc(model.score(S.X), S.y), 4)})
+    return model
+
+
+def sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: int = 16, keep: float = 0.85,
+          seed: int = 0, per_stream: int = 20_000, sources: dict[str, str] | None = None,
+          conditions: Iterable[Condition] = TRAIN_CONDITIONS,
+          progress: Callable[[str], None] | None = None) -> Model:
+    """Inject noise into `recordings`, compute features, fit and calibrate; provenance in `meta`."""
+    conditions = list(conditions)
+    S = samples(recordings, conditions, seeds=(SEED_BASE + seed,), per_stream=per_stream, rng_seed=seed,
+                progress=progress)
+    if progress:
+        progress(f"fitting {kind} on {len(S.y):,} events")
+    model = fit(S, kind, hidden, keep, seed)
+    sources = sources or {}
+    model.meta.update({
+        "name": "trained",
+        "trained_on": [{"recording": n, **({"file": Path(sources[n]).name, "sha256": sha256(sources[n])}
+                                           if n in sources else {})} for n in recordings],
+        "noise_conditions": [c.name for c in conditions],
+        "noise_seed": SEED_BASE + seed,
+        "events_per_stream": per_stream,
+        "training_events": int(len(S.y)),
+        "signal_share": round(float(S.y.mean()), 4),
+    })
+    return model

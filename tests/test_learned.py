@@ -1,0 +1,147 @@
+"""The learned denoiser: the feature kernel against its plain-Python definition, the stage's streaming
+invariants, the model file (round trip, damaged and foreign files refused), and the shipped model."""
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evstream.denoise.learned import FEATURES, LearnedFilter, Model, ModelError, load
+from evstream.denoise.learned.features import reference_features
+from evstream.denoise.learned.model import DEFAULT_MODEL
+from evstream.denoise.learned.train import KEEP_GRID, features_of
+from evstream.events import Geometry, NoiseClass
+from evstream.noise import NoiseSpec, inject
+from evstream.pipeline import build
+from evstream.synth import scene
+from evstream.testing import assert_bounded_state, assert_causal, assert_chunk_invariant, random_stream
+
+NF = len(FEATURES)
+
+
+def random_model(seed, kind="mlp", hidden=8) -> Model:
+    rng = np.random.default_rng(seed)
+    rows = hidden if kind == "mlp" else 1
+    return Model(w1=rng.normal(0, 1, (rows, NF)), b1=rng.normal(0, 1, rows), w2=rng.normal(0, 1, rows),
+                 b2=float(rng.normal()), mean=rng.normal(0, 1, NF), std=rng.uniform(0.5, 2, NF),
+                 keep_grid=KEEP_GRID.copy(), threshold_grid=np.linspace(1, -1, len(KEEP_GRID)),
+                 meta={"kind": kind, "hidden": hidden if kind == "mlp" else 0})
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32), st.integers(0, 300), st.sampled_from([20.0, 300.0, 3000.0]),
+       st.sampled_from([Geometry(24, 18), Geometry(40, 33)]))
+def test_features_match_the_definition(seed, n, mean_dt_us, geometry):
+    s = random_stream(seed, n, geometry, mean_dt_us=mean_dt_us)
+    got = features_of(s)
+    want = reference_features(s.t, s.x, s.y, s.p, geometry.width, geometry.height)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**32), st.sampled_from(["logistic", "mlp"]))
+def test_scores_and_codes_match_numpy_inference(seed, kind):
+    s = random_stream(seed, 400, mean_dt_us=100.0)
+    model = random_model(seed, kind)
+    stage = LearnedFilter(model=model, keep=0.7)
+    codes, score = stage.classify_scored(s.replace(label=None))
+    feats = features_of(s)
+    np.testing.assert_allclose(score, model.score(feats), rtol=1e-9, atol=1e-9)
+    thr = model.threshold(0.7)
+    clear = np.abs(score - thr) > 1e-7  # a score on the threshold may round either way
+    np.testing.assert_array_equal(codes[clear] == NoiseClass.SIGNAL, (score >= thr)[clear])
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**32))
+def test_stage_is_chunk_invariant_and_causal(seed):
+    model = random_model(seed)
+    s = random_stream(seed, 500, mean_dt_us=200.0)
+    make = lambda: LearnedFilter(model=model)  # noqa: E731
+    assert_chunk_invariant(make, s, seed)
+    assert_causal(make, s, seed)
+
+
+def test_stage_sees_only_live_events_after_another_stage():
+    """Behind another stage, the learned stage judges (and remembers) only the events still SIGNAL."""
+    s = random_stream(3, 2000, mean_dt_us=100.0)
+    model = random_model(3)
+    first = build("stage", {"kind": "refractory"})
+    after = first(s.replace(label=None))
+    live = after.cls == NoiseClass.SIGNAL
+    out = LearnedFilter(model=model)(after)
+    alone = LearnedFilter(model=model)(s[live].replace(label=None))
+    np.testing.assert_array_equal(out.cls[live], alone.cls)
+    np.testing.assert_array_equal(out.cls[~live], after.cls[~live])
+
+
+def test_state_is_bounded():
+    model = random_model(0)
+    assert_bounded_state(lambda: LearnedFilter(model=model),
+                         lambda n: random_stream(1, n, mean_dt_us=100.0), n=3000)
+
+
+def test_model_file_round_trip_and_same_bytes(tmp_path):
+    m = random_model(5)
+    m.meta.update({"feature_version": 1, "features": list(FEATURES), "keep": 0.85})
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    m.save(a)
+    m.save(b)
+    assert a.read_bytes() == b.read_bytes()
+    back = load(a)
+    feats = np.random.default_rng(0).normal(size=(50, NF))
+    np.testing.assert_array_equal(back.score(feats), m.score(feats))
+    assert back.threshold(0.85) == pytest.approx(m.threshold(0.85))
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_bad_model_files_are_one_line_errors(tmp_path):
+    m = random_model(6)
+    m.meta.update({"feature_version": 1, "features": list(FEATURES), "keep": 0.85})
+    good = tmp_path / "good.npz"
+    m.save(good)
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(good.read_bytes()[:300])
+    other = tmp_path / "other.npz"
+    m.meta["feature_version"] = 99
+    m.save(other)
+    plain = tmp_path / "plain.npz"
+    np.savez(plain, x=np.zeros(3))
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip at all")
+    for path, words in [(cut, "not a readable"), (other, "feature version 99"), (plain, "missing"),
+                        (junk, "not a readable"), (tmp_path / "none.npz", "no such model file")]:
+        with pytest.raises(ModelError) as e:
+            load(path)
+        msg = str(e.value)
+        assert "\n" not in msg and str(path) in msg and words in msg, msg
+
+
+def test_model_file_holds_no_pickle(tmp_path):
+    m = random_model(7, "logistic")
+    m.meta.update({"feature_version": 1, "features": list(FEATURES), "keep": 0.85})
+    m.save(tmp_path / "m.npz")
+    with np.load(tmp_path / "m.npz", allow_pickle=False) as z:
+        assert all(z[k].dtype != object for k in z.files)
+        assert json.loads(str(z["meta"]))["kind"] == "logistic"
+    with zipfile.ZipFile(tmp_path / "m.npz") as zf:
+        assert all(i.date_time == (1980, 1, 1, 0, 0, 0) for i in zf.infolist())
+
+
+@pytest.mark.skipif(not DEFAULT_MODEL.exists(), reason="no shipped model")
+def test_shipped_model_removes_noise_and_hot_pixels():
+    """On a scene none of its training data came from (the default seed differs), at 100 % noise:
+    most background and hot-pixel events removed, most of the signal kept."""
+    g = Geometry(128, 96)
+    sig = scene("ball", g, duration_us=400_000, seed=77)
+    noisy = inject(sig, NoiseSpec(noise_ratio=1.0), seed=5, t_start_us=0, t_stop_us=400_000)
+    stage = build("stage", {"kind": "learned"})
+    cls = stage(noisy.replace(label=None)).cls
+    warm = noisy.t >= stage.history_us
+    lab, kept = noisy.label[warm], cls[warm] == NoiseClass.SIGNAL
+    assert kept[lab == NoiseClass.SIGNAL].mean() > 0.7
+    assert kept[lab == NoiseClass.BACKGROUND].mean() < 0.2
+    assert kept[lab == NoiseClass.HOT_PIXEL].mean() < 0.05
