@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint recordings clean clean-cache
+.PHONY: demo test bench lint recordings model clean clean-cache
 
 # PYTHONWARNINGS: setuptools' "Editable installation" notice is information, not a warning about this project
 $(STAMP): pyproject.toml
@@ -30,6 +30,14 @@ recordings: $(STAMP)
 	$(BIN)/evstream synth turntable recordings/turntable.npz --duration-ms 1000 --noise-ratio 0.5 --seed 1
 	$(BIN)/evstream synth ball recordings/ball.npz --duration-ms 1000 --noise-ratio 0.5 --seed 2
 	$(BIN)/evstream synth bar recordings/bar.npz --duration-ms 500 --noise-ratio 0.5 --seed 3
+
+# The shipped learned model (docs/learned.md): the synthetic scenes and the MIT-licensed real recordings
+# only (no GPL or share-alike data in the weights); seeded, so the same bytes each time.
+REAL ?= $(or $(EVSTREAM_REAL_DATA),../shared/data/real)
+model: $(STAMP)
+	$(BIN)/evstream train recordings/turntable.npz recordings/ball.npz recordings/bar.npz \
+	    $(REAL)/davis346_frames_imu_evlib.aedat4 $(REAL)/prophesee_gen3_vga_evt2_faery.raw \
+	    --seed 0 --out evstream/denoise/learned/default_model.npz
 
 clean: clean-cache
 	rm -rf $(VENV) out .pytest_cache

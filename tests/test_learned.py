@@ -145,3 +145,24 @@ def test_shipped_model_removes_noise_and_hot_pixels():
     assert kept[lab == NoiseClass.SIGNAL].mean() > 0.7
     assert kept[lab == NoiseClass.BACKGROUND].mean() < 0.2
     assert kept[lab == NoiseClass.HOT_PIXEL].mean() < 0.05
+
+
+def test_train_command_writes_a_model_the_pipeline_uses(tmp_path):
+    """`evstream train` on one recording writes a model; `--denoise learned --model` runs it in a
+    pipeline; a damaged model is a one-line error with exit 1."""
+    from evstream.cli import main
+
+    out = tmp_path / "m.npz"
+    assert main(["train", "recordings/bar.npz", "--out", str(out), "--events-per-stream", "3000"]) == 0
+    m = load(out)
+    assert m.meta["trained_on"][0]["file"] == "bar.npz" and len(m.meta["trained_on"][0]["sha256"]) == 64
+    assert m.meta["noise_conditions"] == ["50%", "100%", "200%", "1Hz", "3Hz", "5Hz"]
+    arch = tmp_path / "a.mcap"
+    assert main(["archive", "recordings/bar.npz", str(arch), "--denoise", "learned", "--model", str(out),
+                 "--keep", "0.8"]) == 0
+    assert arch.stat().st_size > 0
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(out.read_bytes()[:100])
+    assert main(["archive", "recordings/bar.npz", str(tmp_path / "b.mcap"), "--denoise", "learned",
+                 "--model", str(bad)]) == 1
+    assert main(["archive", "recordings/bar.npz", str(tmp_path / "c.mcap"), "--model", str(out)]) == 2

@@ -13,7 +13,7 @@ import sys
 import warnings
 
 from ..events import EventError
-from . import archive, evaluate, files, frames, publish, replay, router, subscribe
+from . import archive, evaluate, files, frames, publish, replay, router, subscribe, train
 from .common import Progress, UsageError, event_rate
 from .replay import LagMeter
 
@@ -21,8 +21,8 @@ __all__ = ["LagMeter", "Progress", "event_rate", "main", "parser"]
 
 # the order `evstream --help` lists them in
 COMMANDS = (files.add_info_parser, replay.add_parser, archive.add_parser, frames.add_parser,
-            files.add_convert_parser, evaluate.add_synth_parser, evaluate.add_eval_parser, publish.add_parser,
-            subscribe.add_parser, router.add_parser)
+            files.add_convert_parser, evaluate.add_synth_parser, evaluate.add_eval_parser, train.add_parser,
+            publish.add_parser, subscribe.add_parser, router.add_parser)
 
 
 def parser() -> argparse.ArgumentParser:

@@ -80,6 +80,10 @@ def add_pipeline_flags(p) -> None:
     p.add_argument("--denoise", metavar="NAME",
                    help="denoise stage (none, truth, ...); default: the paper's, or an archive's stored classes")
     p.add_argument("--pipeline", metavar="FILE.toml", help="pipeline description (overrides --denoise)")
+    p.add_argument("--model", metavar="MODEL.npz", help="--denoise learned: a model from `evstream train` "
+                   "(default: the shipped one)")
+    p.add_argument("--keep", type=float, metavar="FRACTION",
+                   help="--denoise learned: the fraction of the signal to keep (default: the model's)")
 
 
 STORED_CLASSES_NOTE = "noise classes as stored in the archive (--denoise NAME classifies again)"
@@ -99,7 +103,12 @@ def pipeline_from_args(args, source) -> Pipeline:
         return Pipeline([])
     if name not in kinds("stage"):
         raise UsageError(f"--denoise {name}: unknown; choose from none, {', '.join(kinds('stage'))}")
-    return Pipeline([build("stage", {"kind": name})])
+    params = {}
+    if getattr(args, "model", None) or getattr(args, "keep", None) is not None:
+        if name != "learned":
+            raise UsageError("--model and --keep go with --denoise learned")
+        params = {k: v for k, v in (("model", args.model), ("keep", args.keep)) if v is not None}
+    return Pipeline([build("stage", {"kind": name, **params})])
 
 
 def attach_framer(pipeline: Pipeline, args) -> None:

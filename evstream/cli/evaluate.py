@@ -63,25 +63,7 @@ def cmd_eval(args) -> int:
                          "name recordings (evstream eval REC ...), add --real DIR, or run from the repository root")
     if args.real:
         paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")
-    recordings = {}
-    seen = set()  # (events, first t, last t): a converted twin of a file already read is skipped
-    for path in paths:
-        try:
-            events = _read_all(path)
-        except (EventError, OSError, ValueError) as e:
-            print(f"evstream eval: skipping {path}: {e}", file=sys.stderr)
-            continue
-        duration_s = events.duration_us * 1e-6
-        if duration_s < args.min_duration_s:
-            print(f"evstream eval: skipping {path}: {duration_s:.3f} s is shorter than --min-duration-s",
-                  file=sys.stderr)
-            continue
-        signature = (len(events), int(events.t[0]), int(events.t[-1]))
-        if signature in seen:
-            print(f"evstream eval: skipping {path}: same events as a recording already read", file=sys.stderr)
-            continue
-        seen.add(signature)
-        recordings[Path(path).stem] = events
+    recordings = read_recordings(paths, args.min_duration_s, "evstream eval")
     if not recordings:
         raise UsageError("no recording to evaluate")
     methods = args.methods.split(",") if args.methods else list(evaluation.METHODS)
@@ -114,6 +96,34 @@ def cmd_eval(args) -> int:
             print("evstream eval: matplotlib is not installed; no ROC plot (pip install matplotlib)",
                   file=sys.stderr)
     return 0
+
+
+def read_recordings(paths, min_duration_s: float, command: str, strict: bool = False) -> dict:
+    """{name: events} of every readable recording in `paths`, saying on stderr which are skipped and why
+    (unreadable, shorter than `min_duration_s`, a converted twin of a recording already read).
+    `strict`: an unreadable recording is an error, not a skip (the user named it)."""
+    recordings = {}
+    seen = set()  # (events, first t, last t): a converted twin of a file already read is skipped
+    for path in paths:
+        try:
+            events = _read_all(path)
+        except (EventError, OSError, ValueError) as e:
+            if strict:
+                raise
+            print(f"{command}: skipping {path}: {e}", file=sys.stderr)
+            continue
+        duration_s = events.duration_us * 1e-6
+        if duration_s < min_duration_s:
+            print(f"{command}: skipping {path}: {duration_s:.3f} s is shorter than --min-duration-s",
+                  file=sys.stderr)
+            continue
+        signature = (len(events), int(events.t[0]), int(events.t[-1]))
+        if signature in seen:
+            print(f"{command}: skipping {path}: same events as a recording already read", file=sys.stderr)
+            continue
+        seen.add(signature)
+        recordings[Path(path).stem] = events
+    return recordings
 
 
 def _read_all(path: str):
