@@ -53,7 +53,9 @@ class Source(Protocol):
 
 @runtime_checkable
 class Sink(Protocol):
-    """Receives every batch; `close` is called once, with the final statistics."""
+    """Receives every batch; `close` is called once, with the final statistics. A sink writing a file may
+    also have `fail(stats, error)`, called instead of `close` when the run fails (the file it replaces is
+    then kept as it was); it may raise a clearer error in place of `error`."""
 
     def write(self, batch: Batch) -> None: ...
 
@@ -156,7 +158,8 @@ class Pipeline:
         sinks: Iterable[Sink] = (),
         on_batch: Callable[[Batch], None] | None = None,
     ) -> RunStats:
-        """Drive `source` through the pipeline into `sinks`; sinks are closed even on error."""
+        """Drive `source` through the pipeline into `sinks`; sinks are closed even on error (`fail`ed, if
+        they can tell a failed run from a whole one)."""
         sinks = list(sinks)
         t0 = time.perf_counter()
         geometry = None  # of the events leaving the stages: a transform may crop, rotate, downsample
@@ -176,10 +179,18 @@ class Pipeline:
                 if batch.frames:
                     for sink in sinks:
                         sink.write(batch)
-        finally:
+        except BaseException as e:
             self.stats.wall_s = time.perf_counter() - t0
             for sink in sinks:
-                sink.close(self.stats)
+                fail = getattr(sink, "fail", None)
+                if fail is None:
+                    sink.close(self.stats)
+                else:
+                    fail(self.stats, e)
+            raise
+        self.stats.wall_s = time.perf_counter() - t0
+        for sink in sinks:
+            sink.close(self.stats)
         return self.stats
 
     def out_geometry(self, geometry: Geometry) -> Geometry:

@@ -28,9 +28,11 @@ calibration), and one frame it cannot reach sends its 3D view back to "tf#/": wi
 identity transform `<camera>` -> `<camera>_image_plane` connects it (other tools ignore the extra
 frame). Points carry their class's colour (`red`, `green`, `blue`, `alpha`) beside `class`.
 
-Crash safety: chunks (zstd) are closed and handed to the OS every `chunk_bytes` of messages or
-`flush_s` seconds, whichever comes first; a killed writer loses at most the chunk in progress, and
-`sources.mcap_log` reads what came before it from a file without a footer.
+Crash safety: the archive is written beside its target (`OUT.mcap.part`, `safe_write`) and renamed onto
+it when whole, so a failed run leaves an older `OUT.mcap` as it was. The first chunk (zstd) is closed as
+soon as it holds a message, later ones every `chunk_bytes` of messages or `flush_s` seconds, whichever
+comes first, each handed to the OS: a killed writer loses at most the last `flush_s` of messages, and
+`sources.mcap_log` reads what came before from the `.part` file (it has no footer).
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ from evstream.codecs.event_packet import DATATYPE, HEADER_MSGDEFS, MSGDEF, encod
 from evstream.codecs.packets import ENCODINGS, PacketEncoder
 from evstream.events import N_CLASSES, EventChunk, EventError, Frame, Geometry, NoiseClass
 from evstream.pipeline import Batch, RunStats
+from evstream.safe_write import AtomicOutput
 
 __all__ = ["META_CLASS", "META_PACKET_US", "META_TIME_BASE", "McapSink", "topics"]
 
@@ -250,7 +253,7 @@ class McapSink:
                  point_budget: int = 50_000,
                  packet_us: int = 10_000, max_packet_events: int = 200_000, chunk_bytes: int = 4 << 20,
                  flush_s: float = 1.0, zstd_level: int = 1, metadata: dict[str, Any] | None = None,
-                 geometry: Geometry | None = None):
+                 geometry: Geometry | None = None, inputs=()):
         if not _CAMERA_NAME.match(camera):
             raise ValueError(f"camera name {camera!r}: letters, digits and '_', starting with a letter")
         if encoding not in ENCODINGS:
@@ -285,8 +288,13 @@ class McapSink:
         self._t_first: int | None = None
         self._pending_bytes = 0
         self._last_flush = time.monotonic()
+        self._first_flushed = True
         self._closed = False
-        self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._first_flushed = False
+        # beside the target until whole (`safe_write`); an input given as the target is refused here
+        self._output = AtomicOutput(self.path, inputs, keep_partial=True)
+        self.part = str(self._output.part)
+        self._file = open(self.part, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._file, chunk_size=_NEVER, compression=CompressionType.ZSTD)
         ros2_only = not points and (not frames or frame_format == "ros2")
         profile = "ros2" if ros2_only else ""  # "ros2": every channel is ROS 2 CDR
@@ -452,6 +460,8 @@ class McapSink:
         now = time.monotonic()
         if self._pending_bytes >= self.chunk_bytes or (self._pending_bytes and now - self._last_flush >= self.flush_s):
             self.flush()
+        elif self._pending_bytes and not self._first_flushed:  # the first packets on disk at once: a kill
+            self.flush()  # in the first flush_s (or 4 MiB) recovered nothing
 
     def tick(self) -> None:
         """Close the chunk in progress if `flush_s` has passed: for live sources, call it when no batch comes
@@ -465,12 +475,37 @@ class McapSink:
             self._writer.flush()  # finalizes the chunk, writes it and its message indexes, flushes the file
         self._pending_bytes = 0
         self._last_flush = time.monotonic()
+        self._first_flushed = True
 
     # -- closing -----------------------------------------------------------------------------------------
     def close(self, stats: RunStats | None = None) -> None:
-        """Write what is still waiting (the open cells), the statistics, the summary and the footer."""
+        """Write what is still waiting (the open cells), the statistics, the summary and the footer, and put
+        the archive in place (renamed onto `path`; a full disk: one error naming it, nothing left there)."""
         if self._closed:
             return
+        try:
+            self._finish(stats)
+        except BaseException as e:
+            raised = self._output.failed(e)
+            if raised is not e:
+                raise raised from None
+            raise
+        self._output.commit()
+
+    def fail(self, stats: RunStats | None, error: BaseException) -> None:
+        """After a failed run: the archive closed (readable up to the failure) but not put in place; the
+        file at `path` stays as it was. Raises the error to report (a full disk as one line naming `path`;
+        else `error`, saying where the partial archive is)."""
+        try:
+            if not self._closed:
+                self._finish(stats)
+        except Exception:  # the disk, most likely: the partial file is what it is
+            pass
+        raised = self._output.failed(error)
+        if raised is not error:
+            raise raised from None
+
+    def _finish(self, stats: RunStats | None) -> None:
         try:
             if self.geometry is not None:
                 self._emit_cells(1 << 62)
@@ -491,5 +526,8 @@ class McapSink:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, kind, e, tb):
+        if e is None:
+            self.close()
+        else:
+            self.fail(None, e)

@@ -365,13 +365,18 @@ def test_tick_closes_the_chunk_when_the_stream_goes_quiet(tmp_path):
     s = classified(13, 2000)
     path = tmp_path / "live.mcap"
     sink = McapSink(path, frames=False, flush_s=0.05)
+    part = Path(sink.part)  # the archive is written beside its name until closed
     stats = RunStats()
-    sink.write(Batch(s, [], stats))  # cells closed, packets in the chunk in progress
+    sink.write(Batch(s[:1000], [], stats))  # the first chunk goes to disk at once
+    sink._last_flush = time.monotonic()
+    sink.write(Batch(s[1000:], [], stats))  # cells closed, packets in the chunk in progress
     sink._last_flush = time.monotonic()
     sink.write(Batch(EventChunk.empty(G, t_end=s.t_end + 10**6, with_cls=True), [], stats))
-    before = path.stat().st_size
+    before = part.stat().st_size
     time.sleep(0.06)
     sink.tick()  # nothing new came, but the chunk is due: it goes to disk
-    assert path.stat().st_size > before
-    assert sum(1 for _ in mcap_log._records(str(path), mcap_log._Scan())) > 0
+    assert part.stat().st_size > before
+    assert sum(1 for _ in mcap_log._records(str(part), mcap_log._Scan())) > 0
+    assert not path.exists()
     sink.close(stats)
+    assert path.exists() and not part.exists()

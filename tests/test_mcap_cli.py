@@ -68,14 +68,19 @@ def _start(recording, out, *extra):
     proc = subprocess.Popen([EVSTREAM, "archive", str(recording), str(out), "--denoise", "truth", "--speed", "1",
                              "--flush-s", "0.1", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:  # wait until a few chunks are on disk: the pipeline runs
-        if len(_complete_chunks(out)) >= 3:
+    while time.monotonic() < deadline:  # wait until a few chunks are on disk (beside OUT until whole)
+        if len(_complete_chunks(_part(out))) >= 3:
             return proc
         if proc.poll() is not None:
             raise AssertionError(f"archiver ended early: {proc.communicate()}")
         time.sleep(0.05)
     proc.kill()
     raise AssertionError("archiver wrote no chunks in 60 s")
+
+
+def _part(out) -> Path:
+    """Where an archive is written until it is whole (`evstream.safe_write`)."""
+    return Path(f"{out}.part")
 
 
 def _complete_chunks(path) -> list[int]:
@@ -106,11 +111,13 @@ def test_sigkill_loses_at_most_the_chunk_in_progress(recording, tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL
-    with open(out, "rb") as f:
+    assert not out.exists()  # the target is never a half-written file
+    part = _part(out)
+    with open(part, "rb") as f:
         assert f.read()[-8:] != mcap_log.MAGIC  # no footer: the writer never finished
-    in_chunks = sum(_complete_chunks(out))
+    in_chunks = sum(_complete_chunks(part))
     with pytest.warns(mcap_log.TruncatedFileWarning, match=f"recovered {in_chunks} event packets"):
-        src = open_source(out)
+        src = open_source(part)
         got = concat(list(src))
     assert src.recovered_messages == in_chunks > 0
     full = _full_archive(recording, tmp_path)
@@ -153,3 +160,29 @@ def test_real_recordings_archive_and_read_back_with_their_classes(real_data, tmp
     for f in ("t", "x", "y", "p", "cls"):
         np.testing.assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
     assert 0 < int((got.cls != 0).sum()) < len(got)
+
+
+def test_sigkill_at_random_points_after_the_first_packet_recovers_a_prefix(recording, tmp_path):
+    """Issue 22: 5 of 12 kills in the first second recovered nothing (the first chunk closed after 1 s or
+    4 MiB). The first chunk now closes with the first packet, so any kill after it recovers events, the
+    events the archive would hold, in order. `EVSTREAM_KILLS=N` for more kills (seeded)."""
+    rng = np.random.default_rng(22)
+    full = _full_archive(recording, tmp_path)
+    for k in range(int(os.environ.get("EVSTREAM_KILLS", "3"))):
+        out = tmp_path / f"k{k}.mcap"
+        proc = subprocess.Popen([EVSTREAM, "archive", str(recording), str(out), "--denoise", "truth", "--speed", "1",
+                                 "--flush-s", "0.2"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + 60
+        while not _complete_chunks(_part(out)) and time.monotonic() < deadline:  # the first packet is written
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.01)
+        time.sleep(float(rng.uniform(0, 1.5)))
+        proc.kill()
+        proc.wait(timeout=30)
+        assert not out.exists()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", mcap_log.TruncatedFileWarning)
+            got = concat(list(open_source(_part(out))))
+        assert 0 < len(got) < len(full)
+        for f in "txyp":
+            np.testing.assert_array_equal(getattr(got, f), getattr(full, f)[: len(got)])

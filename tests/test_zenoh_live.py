@@ -179,8 +179,8 @@ def test_publisher_restarted_mid_stream(procs, tmp_path):
     first = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
                         "--speed", "1", "--wait-subscribers", "10", "--drain-s", "30")
     deadline = time.monotonic() + 30
-    while not (tmp_path / "live.mcap").exists() and time.monotonic() < deadline:
-        time.sleep(0.05)  # the archive opens with the first packet: packets flow
+    while not (tmp_path / "live.mcap.part").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)  # the archive opens (beside its name until closed) with the first packet: packets flow
     time.sleep(0.4)
     first.kill()  # no end mark: the camera just vanished
     first.wait(timeout=10)

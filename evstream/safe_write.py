@@ -1,0 +1,162 @@
+"""Writing an output without destroying anything: the one way every writer (archive, convert, replay
+--save, frames --out, subscribe --archive) puts a file in place.
+
+- An output that is one of the inputs, by file identity (device and inode: hard and symbolic links
+  included), is refused before anything is opened (`OutputIsInput`).
+- Bytes go to a temporary file beside the target, created exclusively (`TARGET.part`, or
+  `TARGET.N.part` when that name is taken), so the temporary is never an existing file — not an
+  input, not the partial output of an earlier run — and is renamed onto the target only when whole.
+- A failed run leaves the target as it was. Its partial output is removed, or kept when the writer
+  asks (an MCAP archive closed after an error is readable up to it); the error then says where.
+- A full disk is one error naming the target: "no space left on the device".
+
+A killed process leaves its temporary where it was (`TARGET.part`): what it wrote so far, the target
+untouched.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+
+__all__ = ["AtomicOutput", "OutputIsInput", "check_not_input", "is_no_space", "no_space_error"]
+
+_NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
+_MAX_PART_NAMES = 1000
+
+
+class OutputIsInput(ValueError):
+    """The output is (a link to) an input file: writing it would destroy what is being read."""
+
+
+def _identity(path) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+def check_not_input(target, inputs, flag: str = "") -> None:
+    """Raise `OutputIsInput` when `target` exists and is the same file as one of `inputs`."""
+    mine = _identity(target)
+    if mine is None:
+        return
+    for path in inputs:
+        if path is not None and _identity(path) == mine:
+            raise OutputIsInput(f"{flag}{os.fspath(target)}: that is the input recording; "
+                                "writing there would destroy it")
+
+
+def is_no_space(e: BaseException) -> bool:
+    """Whether `e` says the disk (or the quota, or the largest file size) is full."""
+    while e is not None:
+        if isinstance(e, OSError) and e.errno in _NO_SPACE:
+            return True
+        if "No space left on device" in str(e) or "os error 28" in str(e):
+            return True
+        e = e.__cause__ or e.__context__
+    return False
+
+
+def no_space_error(target) -> OSError:
+    """The one-line error for a full disk, naming the file that could not be written."""
+    e = OSError(f"{os.fspath(target)}: no space left on the device; nothing written there "
+                "(an earlier file of that name is left as it was)")
+    e.errno = errno.ENOSPC
+    return e
+
+
+def _create_part(target: Path) -> Path:
+    """A new, empty file beside `target` that did not exist before (O_EXCL): TARGET.part, TARGET.1.part, ..."""
+    for n in range(_MAX_PART_NAMES):
+        part = target.with_name(f"{target.name}.part" if n == 0 else f"{target.name}.{n}.part")
+        try:
+            fd = os.open(part, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return part
+    raise OSError(f"{target}: {_MAX_PART_NAMES} temporary files {target.name}.N.part are in the way; remove them")
+
+
+class AtomicOutput:
+    """A temporary file `part` beside `target`; `commit()` renames it onto the target, `discard()` removes
+    it (or keeps it, with `keep_partial`). As a context manager: commit on success, discard on error,
+    with a full disk said as one line naming the target.
+
+        with AtomicOutput("out.mcap", inputs=["rec.raw"]) as part:
+            write_everything_to(part)
+    """
+
+    def __init__(self, target, inputs=(), *, keep_partial: bool = False, flag: str = ""):
+        self.target = Path(os.fspath(target))
+        self.inputs = [os.fspath(p) for p in inputs if p is not None]
+        self.keep_partial = keep_partial
+        check_not_input(self.target, self.inputs, flag)
+        if self.target.is_dir():
+            raise IsADirectoryError(f"{flag}{self.target}: is a directory")
+        self.part = _create_part(self.target)
+        self.kept: Path | None = None  # the partial output, when a failure kept it
+        self.done = False
+
+    def commit(self) -> Path:
+        """Put the whole output in place: flush it to the disk, then rename it onto the target."""
+        if self.done:
+            return self.target
+        check_not_input(self.target, self.inputs)  # a link made to an input meanwhile
+        try:
+            fd = os.open(self.part, os.O_RDONLY)
+            try:
+                os.fsync(fd)  # the rename must not reach the disk before the bytes do
+            finally:
+                os.close(fd)
+            os.replace(self.part, self.target)
+        except OSError as e:
+            self.discard()
+            if is_no_space(e):
+                raise no_space_error(self.target) from None
+            raise
+        self.done = True
+        return self.target
+
+    def discard(self, keep: bool | None = None) -> Path | None:
+        """Remove the temporary (or keep it when `keep`, default `keep_partial`, and it holds bytes);
+        returns the kept path or None. The target is not touched."""
+        if self.done:
+            return self.kept
+        self.done = True
+        keep = self.keep_partial if keep is None else keep
+        try:
+            if keep and self.part.stat().st_size > 0:
+                self.kept = self.part
+                return self.part
+        except OSError:
+            pass
+        self.part.unlink(missing_ok=True)
+        return None
+
+    def failed(self, e: BaseException) -> BaseException:
+        """Discard after `e` and return the error to raise: a full disk as one line naming the target (its
+        partial output removed: it is cut short and takes the space), else `e` saying where the partial
+        output is, if kept."""
+        if is_no_space(e):
+            self.discard(keep=False)
+            return no_space_error(self.target)
+        kept = self.discard()
+        if kept is not None and len(e.args) == 1 and isinstance(e.args[0], str) and isinstance(e, Exception):
+            e.args = (f"{e.args[0]} ({self.target} left as it was; the output up to there is in {kept})",)
+        return e
+
+    def __enter__(self) -> Path:
+        return self.part
+
+    def __exit__(self, kind, e, tb) -> bool:
+        if e is None:
+            self.commit()
+            return False
+        raised = self.failed(e)
+        if raised is not e:
+            raise raised from None
+        return False
