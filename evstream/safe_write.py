@@ -90,7 +90,8 @@ class AtomicOutput:
             write_everything_to(part)
     """
 
-    def __init__(self, target, inputs=(), *, keep_partial: bool = False, flag: str = ""):
+    def __init__(self, target, inputs=(), *, keep_partial: bool = False, flag: str = "", sync: bool = True):
+        self.sync = sync  # flush the bytes to the disk before the rename (survives a power cut too)
         self.target = Path(os.fspath(target))
         self.inputs = [os.fspath(p) for p in inputs if p is not None]
         self.keep_partial = keep_partial
@@ -107,11 +108,12 @@ class AtomicOutput:
             return self.target
         check_not_input(self.target, self.inputs)  # a link made to an input meanwhile
         try:
-            fd = os.open(self.part, os.O_RDONLY)
-            try:
-                os.fsync(fd)  # the rename must not reach the disk before the bytes do
-            finally:
-                os.close(fd)
+            if self.sync:
+                fd = os.open(self.part, os.O_RDONLY)
+                try:
+                    os.fsync(fd)  # the rename must not reach the disk before the bytes do
+                finally:
+                    os.close(fd)
             os.replace(self.part, self.target)
         except OSError as e:
             self.discard()

@@ -131,6 +131,44 @@ def _wait_window(proc: subprocess.Popen, log: Path, timeout_s: float) -> None:
         time.sleep(0.05)
 
 
+class _RrdFile:
+    """The SDK's `.rrd` file sink, pointed at a file beside the target (`safe_write`) that is renamed onto
+    it when whole. A full disk shows as the SDK's "File-writer thread shut down prematurely" (its Rust log
+    lines are off in the CLI, `evstream.cli`): said here as one OSError naming the file, nothing left at
+    the target."""
+
+    def __init__(self, rec: rr.RecordingStream, target: str, inputs=()):
+        from evstream.safe_write import AtomicOutput
+
+        self.output = AtomicOutput(target, inputs)
+        try:
+            rec.save(str(self.output.part))
+        except RuntimeError as e:  # the SDK's "Failed to create file: ...": an I/O error, said as one
+            self.output.discard()
+            raise OSError(f"{target}: cannot write the Rerun recording: {e}") from None
+
+    def failed(self, e: BaseException) -> OSError:
+        from evstream.safe_write import no_space_error
+
+        self.output.discard(keep=False)
+        target = self.output.target
+        try:
+            st = os.statvfs(target.parent)
+            full = st.f_bavail * st.f_frsize < (4 << 20)
+        except OSError:
+            full = False
+        if full:
+            return no_space_error(target)
+        return OSError(f"{target}: cannot write the Rerun recording: {e}")
+
+    def commit(self) -> None:
+        self.output.commit()
+
+    def abandon(self) -> None:
+        if not self.output.done:
+            self.output.discard(keep=False)
+
+
 @dataclass
 class RerunOutput:
     """An open recording stream and what it is connected to (a child process, URLs to show)."""
@@ -144,11 +182,16 @@ class RerunOutput:
     notes: list[str] = field(default_factory=list)
     log: Path | None = None
 
+    file: _RrdFile | None = None
+
     def finish(self) -> None:
-        """Flush and detach the SDK (the file gets its footer; a viewer or server keeps the data)."""
+        """Flush and detach the SDK (the file gets its footer and is put in place; a viewer or server keeps
+        the data)."""
         with self.guard():
             self.rec.flush()
             self.rec.disconnect()
+        if self.file is not None:
+            self.file.commit()
 
     @contextlib.contextmanager
     def guard(self):
@@ -157,6 +200,8 @@ class RerunOutput:
         try:
             yield
         except RuntimeError as e:
+            if self.file is not None:  # the SDK's file writer stopped (a full disk): one line naming the file
+                raise self.file.failed(e) from None
             if "connection severed" not in str(e) and "transport error" not in str(e):
                 raise
             raise OSError(self.lost_viewer()) from None
@@ -172,7 +217,10 @@ class RerunOutput:
         return f"lost the connection to the Rerun viewer at {self.grpc_url}"
 
     def stop(self) -> None:
-        """End a server this process started (spawned desktop viewers stay open)."""
+        """End a server this process started (spawned desktop viewers stay open); an `.rrd` not finished
+        (the run failed) is removed, an older file of that name left as it was."""
+        if self.file is not None:
+            self.file.abandon()
         if self.process is not None and self.mode == "serve" and self.process.poll() is None:
             self.process.terminate()
             try:
@@ -186,8 +234,9 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
                 connect: str | None = None, bind: str = "127.0.0.1",
                 memory_limit: str = DEFAULT_MEMORY_LIMIT, grpc_port: int = DEFAULT_GRPC_PORT,
                 web_port: int = DEFAULT_WEB_PORT, application_id: str = "evstream",
-                log_dir: str | os.PathLike | None = None) -> RerunOutput:
-    """Open a recording stream for exactly one of `save`, `spawn`, `serve`, `connect`."""
+                log_dir: str | os.PathLike | None = None, inputs=()) -> RerunOutput:
+    """Open a recording stream for exactly one of `save`, `spawn`, `serve`, `connect` (`inputs`: files the
+    saved `.rrd` may not be)."""
     chosen = [m for m, on in (("save", save), ("spawn", spawn), ("serve", serve), ("connect", connect)) if on]
     if len(chosen) != 1:
         raise ValueError(f"choose one Rerun output (save, spawn, serve or connect), got {chosen or 'none'}")
@@ -195,11 +244,7 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
     log_dir = Path(log_dir) if log_dir else Path(os.environ.get("TMPDIR", "/tmp"))
     if save:
         Path(save).parent.mkdir(parents=True, exist_ok=True)
-        try:
-            rec.save(save)
-        except RuntimeError as e:  # the SDK's "Failed to create file: ...": an I/O error, said as one
-            raise OSError(f"{save}: cannot write the Rerun recording: {e}") from None
-        return RerunOutput(rec, "save", path=save)
+        return RerunOutput(rec, "save", path=save, file=_RrdFile(rec, save, inputs))
     if connect:
         _check_viewer(connect)
         rec.connect_grpc(connect)

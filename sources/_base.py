@@ -243,6 +243,7 @@ class FileSource:
             k = min(step, queue.n)
             next_t = queue.t_at(k) if strict and k < queue.n else None
             yield self._emit(check, queue.take(k), next_t)
+        check_not_shrunk(self.path, self.file_size)
         self.dropped, self.reordered = check.dropped, check.reordered
         if check.dropped:
             self.warn(f"{check.dropped} events dropped: their timestamps go back "
@@ -282,6 +283,18 @@ class FileSource:
                 f"{self.path}{' ' + where if where else ''}: event {first_event + i}: ({b.x[i]}, {b.y[i]}) outside the "
                 f"{g} sensor (size from {self.geometry_source}){hint}"
             )
+
+
+def check_not_shrunk(path: str, size_at_open: int) -> None:
+    """An input cut shorter while it was read (`truncate` during a paced replay) ends the stream early
+    without a sign in the data: an EventError says so, so the run does not end as if whole."""
+    try:
+        now = os.path.getsize(path)
+    except OSError:
+        raise EventError(f"{path}: the file went away while it was read: the events after that are missing") from None
+    if now < size_at_open:
+        raise EventError(f"{path}: the file shrank from {size_at_open} to {now} bytes while it was read: "
+                         f"the events after byte {now} are missing")
 
 
 def _merge(blocks: list[Block]) -> Block:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import builtins
 import os
 import struct
+import sys
 from collections.abc import Iterator
 
 import numpy as np
@@ -45,7 +46,8 @@ class Aedat4Source(FileSource):
         super().__init__(path, **options)
         self._check_description()
         try:
-            streams = _aedat().Decoder(self.path).id_to_stream()
+            with _quiet_panics():
+                streams = _aedat().Decoder(self.path).id_to_stream()
         except _DECODER_ERRORS as e:  # the Rust decoder raises plain exceptions with its reason, or panics
             if isinstance(e, _NOT_OURS):
                 raise
@@ -162,7 +164,7 @@ class Aedat4Source(FileSource):
         batch = dtype = None  # event packets are small: copy their records into one reused batch
         fill = 0
         try:
-            for packet in _aedat().Decoder(self.path):
+            for packet in _quietly(_aedat().Decoder(self.path)):
                 n_packets += 1
                 ev = packet.get("events")
                 if ev is None or packet["stream_id"] != self.stream_id:
@@ -206,6 +208,54 @@ _HEADER_OFFSET = 18  # "#!AER-DAT4.0\r\n" then the header's size (uint32) then t
 # A Rust panic in the decoder (a header byte flipped into half a UTF-8 character: "end byte index 1124
 # is not a char boundary") arrives as pyo3's PanicException, a BaseException: `except Exception` let it
 # through as a traceback. Catch every exception but the ones that are not about the file.
+class _quiet_panics:
+    """Around a call into the Rust decoder: what it writes to stderr (file descriptor 2) goes to a side
+    file, and comes back unless it is a Rust panic message ("thread '...' panicked at ..."), which the
+    decoder prints before raising; the reader turns that exception into its own one-line error."""
+
+    _side = None
+
+    def __enter__(self):
+        if _quiet_panics._side is None:
+            import tempfile
+
+            _quiet_panics._side = tempfile.TemporaryFile()
+        self.side = _quiet_panics._side
+        self.side.seek(0)
+        self.side.truncate()
+        try:
+            sys.stderr.flush()
+            self.saved = os.dup(2)
+            os.dup2(self.side.fileno(), 2)
+        except (OSError, ValueError, AttributeError):  # no real stderr (embedded): nothing to quiet
+            self.saved = None
+        return self
+
+    def __exit__(self, *exc):
+        if self.saved is None:
+            return False
+        os.dup2(self.saved, 2)
+        os.close(self.saved)
+        if os.fstat(self.side.fileno()).st_size:
+            self.side.seek(0)
+            text = self.side.read(1 << 16)
+            if b"panicked at" not in text and b"RUST_BACKTRACE" not in text:
+                os.write(2, text)
+        return False
+
+
+def _quietly(decoder):
+    """Iterate the decoder with each step inside `_quiet_panics`."""
+    it = iter(decoder)
+    while True:
+        with _quiet_panics():
+            try:
+                packet = next(it)
+            except StopIteration:
+                return
+        yield packet
+
+
 _DECODER_ERRORS = BaseException
 _NOT_OURS = (KeyboardInterrupt, SystemExit, GeneratorExit, MemoryError)
 

@@ -25,7 +25,7 @@ from zlib_ng import zlib_ng
 from evstream.events import EventChunk, EventError, Geometry, Validator, concat
 
 from . import npy_stream
-from ._base import MAX_SENSOR_SIDE
+from ._base import MAX_SENSOR_SIDE, check_not_shrunk
 
 NAME = "native (.npz)"
 FORMAT = "native"
@@ -96,6 +96,7 @@ class NativeSource:
             self.meta = self._meta() if "meta" in files else {}
             self.has_labels = "label" in files
             self.n_events = self._columns()["t"].rows  # every column's header checked here
+            self.file_size = os.path.getsize(self.path)
         except ZIP_ERRORS as e:
             if isinstance(e, EventError):
                 raise
@@ -204,6 +205,7 @@ class NativeSource:
             t_end = (int(buf["t"][-1]) if len(buf["t"]) else 0) if last else int(buf["t"][k])
             yield emit(k, t_end)
             if last:
+                check_not_shrunk(self.path, self.file_size)
                 return
 
 

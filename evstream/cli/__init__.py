@@ -12,6 +12,11 @@ import os
 import sys
 import warnings
 
+# Before Rerun's Rust logger starts (at `import rerun`): the .rrd writer's own log lines about a failed
+# write stay off; the command reports that failure itself, in one line naming the file (RUST_LOG, when
+# set, wins).
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off")
+
 from ..events import EventError
 from . import archive, evaluate, files, frames, publish, replay, router, subscribe, train
 from .common import Progress, UsageError, event_rate

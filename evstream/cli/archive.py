@@ -50,7 +50,8 @@ def cmd_archive(args) -> int:
     sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
                     frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
                     packet_us=args.packet_us,
-                    flush_s=args.flush_s, metadata=provenance, geometry=pipeline.out_geometry(source.geometry))
+                    flush_s=args.flush_s, metadata=provenance, geometry=pipeline.out_geometry(source.geometry),
+                    inputs=[args.source])
     progress = Progress(source, quiet=args.quiet)
     with StopOnSignal() as stop:
         stats = pipeline.run(stop.chunks(paced(source, args.speed)), [sink], on_batch=progress)

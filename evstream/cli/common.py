@@ -52,9 +52,14 @@ def geometry_flag(text: str):
 
 
 def not_the_input(source: str, out, flag: str) -> None:
-    """An output that is the input recording would destroy it before (or while) it is read."""
-    if out and os.path.exists(out) and os.path.exists(source) and os.path.samefile(source, out):
-        raise UsageError(f"{flag}{out}: that is the input recording; writing there would destroy it")
+    """An output that is the input recording (by file identity: links too) would destroy it before (or
+    while) it is read."""
+    from evstream.safe_write import OutputIsInput, check_not_input
+
+    try:
+        check_not_input(out, [source], flag) if out else None
+    except OutputIsInput as e:
+        raise UsageError(str(e)) from None
 
 
 def check_numbers(args, *, at_least_zero=(), positive=()) -> None:

@@ -3,13 +3,22 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from ..events import NoiseClass
-from .common import Progress, UsageError, add_quiet_flag, add_source_flags, create_folder, folder_note, open_recording
+from ..safe_write import AtomicOutput
+from .common import (
+    Progress,
+    UsageError,
+    add_quiet_flag,
+    add_source_flags,
+    create_folder,
+    folder_note,
+    not_the_input,
+    open_recording,
+)
 
 
 def cmd_info(args) -> int:
@@ -73,32 +82,27 @@ def cmd_convert(args) -> int:
     kind = out.suffix.lower()
     if kind not in (".npz", ".raw", ".h5", ".hdf5"):
         raise UsageError(f"{args.out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
-    if out.resolve() == Path(args.source).resolve():
-        raise UsageError("convert: the output would overwrite the input")
+    not_the_input(args.source, out, "")  # by identity: `ln X.npz h.npz; convert X.npz h.npz` rewrote X
     source = open_recording(args.source, args)
     created = create_folder(out.parent)
     progress = Progress(source, quiet=args.quiet, desc="convert")
     chunks = _reported(source, progress)
-    if kind == ".raw":  # streamed: into a side file, renamed once whole, so a failure leaves no valid-looking
-        part = out.with_name(out.name + ".part")  # half recording (nor clobbers an older OUT)
-        try:
+    with AtomicOutput(out, [args.source]) as part:  # beside OUT until whole: a failure leaves OUT as it was
+        if kind == ".raw":  # streamed
             n = prophesee_raw.save(part, chunks, source.geometry, version=f"evt{args.evt}")
-            os.replace(part, out)
-        finally:
-            part.unlink(missing_ok=True)
-        fmt = f"evt{args.evt}"
-    else:
-        from ..events import concat
-
-        events = concat(list(chunks), source.geometry)  # these writers take whole arrays
-        n = len(events)
-        if kind == ".npz":
-            native.save(out, events, {"converted_from": str(args.source),
-                                      "source_format": getattr(source, "format", "?")})
-            fmt = "native"
+            fmt = f"evt{args.evt}"
         else:
-            hdf5.save(out, events)
-            fmt = "hdf5"
+            from ..events import concat
+
+            events = concat(list(chunks), source.geometry)  # these writers take whole arrays
+            n = len(events)
+            if kind == ".npz":
+                native.save(part, events, {"converted_from": str(args.source),
+                                           "source_format": getattr(source, "format", "?")})
+                fmt = "native"
+            else:
+                hdf5.save(part, events)
+                fmt = "hdf5"
     progress.done()
     summary = {"source": args.source, "out": str(out), "format": fmt, "events": n,
                "width": source.geometry.width, "height": source.geometry.height, "created_folder": created or None}

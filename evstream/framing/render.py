@@ -132,7 +132,12 @@ def png_bytes(image: np.ndarray, level: int = 6) -> bytes:
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
-    Path(path).write_bytes(png_bytes(image))
+    """Write a PNG whole or not at all (beside its name, then renamed: `safe_write`); a full disk is one
+    OSError naming it."""
+    from ..safe_write import AtomicOutput
+
+    with AtomicOutput(path, sync=False) as part:
+        part.write_bytes(png_bytes(image))
 
 
 class PngWriter:
