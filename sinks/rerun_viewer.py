@@ -140,7 +140,11 @@ class _RrdFile:
     def __init__(self, rec: rr.RecordingStream, target: str, inputs=()):
         from evstream.safe_write import AtomicOutput
 
-        self.output = AtomicOutput(target, inputs)
+        try:
+            self.output = AtomicOutput(target, inputs)
+        except OSError as e:  # a directory there, a folder not writable
+            reason = str(e).removeprefix(f"{target}: ")
+            raise OSError(f"{target}: cannot write the Rerun recording: {reason}") from None
         try:
             rec.save(str(self.output.part))
         except RuntimeError as e:  # the SDK's "Failed to create file: ...": an I/O error, said as one

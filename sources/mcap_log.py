@@ -59,11 +59,29 @@ class _Scan:
         self.fraction = 0.0  # bytes read / file size
 
 
+class _Clamped:
+    """A file whose `read(n)` asks for no more than the bytes left: a file object allocates the n bytes
+    it is asked for before reading, and the mcap reader passes lengths from the file (a damaged string
+    length asked for 3 GB from a 5 KB file)."""
+
+    def __init__(self, f, size: int):
+        self.f = f
+        self.size = size
+
+    def read(self, n: int = -1) -> bytes:
+        if n is None or n < 0:
+            return self.f.read()
+        return self.f.read(max(0, min(n, self.size - self.f.tell())))
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+
 def _records(path: str, scan: _Scan) -> Iterator:
     """Every record of the file in order, chunks opened; stops (recording where and why) at damage."""
     with builtins.open(path, "rb") as f:
         size = os.fstat(f.fileno()).st_size
-        reader = StreamReader(f, emit_chunks=True, record_size_limit=max(size, 1))
+        reader = StreamReader(_Clamped(f, size), emit_chunks=True, record_size_limit=max(size, 1))
         it = iter(reader.records)
         while True:
             offset = f.tell()
@@ -79,6 +97,7 @@ def _records(path: str, scan: _Scan) -> Iterator:
                 return
             if isinstance(rec, Chunk):
                 try:
+                    _check_chunk_size(rec)
                     inner = breakup_chunk(rec, validate_crc=True)
                 except Exception as e:  # a damaged chunk: zstd, lz4 or CRC errors
                     if f.tell() < size:  # the file goes on: damage in the middle, not a writer cut short
@@ -90,6 +109,18 @@ def _records(path: str, scan: _Scan) -> Iterator:
                 yield from inner
             else:
                 yield rec
+
+
+# A chunk's claimed size is allocated before it is inflated: a claim is held to what its bytes can hold.
+# Writers close chunks at about 1 MiB (mcap's default) to 4 MiB (ours) plus one message; zstd packs a
+# run of one byte about 32,000:1, so only a claim past both bounds is refused as damaged.
+MAX_CHUNK_BYTES = 64 << 20
+MAX_CHUNK_RATIO = 32_768
+
+
+def _check_chunk_size(rec: Chunk) -> None:
+    if rec.uncompressed_size > max(MAX_CHUNK_BYTES, MAX_CHUNK_RATIO * len(rec.data)):
+        raise ValueError(f"its {len(rec.data)} compressed bytes claim {rec.uncompressed_size} bytes")
 
 
 def _reason(e: Exception) -> str:
