@@ -73,7 +73,28 @@ METHODS: dict[str, Callable[[], object]] = {
     "refractory": _stage("refractory"),
     "hotpixel": _stage("hotpixel"),
 }
-RULE_BASED = tuple(METHODS)  # every method here is a hand-designed rule (no learned model)
+RULE_BASED = tuple(METHODS)  # every method above is a hand-designed rule (no learned model)
+# Trained methods: scored leave-one-recording-out — the model for recording R is trained on the other
+# recordings given (noise seeds from train.SEED_BASE, never the evaluation's), never on R itself.
+TRAINED = ("learned",)
+METHODS["learned"] = None  # built per recording by `loo_models`
+LOO_EVENTS_PER_STREAM = 8_000
+
+
+def loo_models(recordings: dict[str, EventChunk], progress: Callable[[str], None] | None = None) -> dict:
+    """{recording: the learned model fitted on all the other recordings} (leave-one-recording-out).
+    Each recording's training features are computed once and shared by the folds."""
+    from .denoise.learned import train
+
+    signals = {name: ev for name, ev in recordings.items() if len(as_signal(ev)[0]) >= 100}
+    S = train.samples(signals, per_stream=LOO_EVENTS_PER_STREAM, progress=progress)
+    models = {}
+    for gi, name in enumerate(S.names):
+        if progress:
+            progress(f"learned: fitting without {name}")
+        models[name] = train.fit(S.subset(S.group != gi))
+        models[name].meta["name"] = f"trained without {name}"
+    return models
 
 
 def history_us(stage) -> int:
@@ -130,16 +151,23 @@ def _metrics_at(label: np.ndarray, keep: np.ndarray, score: np.ndarray) -> dict:
 
 
 def evaluate(recording: str, signal: EventChunk, condition: Condition, seed: int,
-             methods: Iterable[str], tune: bool = False, curves: dict | None = None) -> list[dict]:
+             methods: Iterable[str], tune: bool = False, curves: dict | None = None,
+             models: dict | None = None) -> list[dict]:
     """One noisy stream, every method: a result row per method. With `curves`, each method's ROC
-    (downsampled to 200 points) is stored there under (recording, condition name, method)."""
+    (downsampled to 200 points) is stored there under (recording, condition name, method). Trained
+    methods take their model from `models[recording]` (one that never saw this recording)."""
     noisy = inject(signal, condition.spec(), seed=seed, t_start_us=int(signal.t[0]),
                    t_stop_us=int(signal.t[-1]) + 1)
     label = noisy.label
     t0, t1 = int(noisy.t[0]), int(noisy.t[-1])
     rows = []
     for name in methods:
-        stage = METHODS[name]()
+        if name in TRAINED:
+            from .denoise.learned import LearnedFilter
+
+            stage = LearnedFilter(model=models[recording])
+        else:
+            stage = METHODS[name]()
         codes, score = stage.classify_scored(noisy.replace(label=None))
         keep = codes == NoiseClass.SIGNAL
         warm_from = t0 + min(history_us(stage), int(WARMUP_CAP * (t1 - t0)))
@@ -178,6 +206,12 @@ def run(recordings: dict[str, EventChunk], conditions: Iterable[Condition], seed
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown method(s) {sorted(unknown)}; known: {', '.join(METHODS)}")
+    models = None
+    if any(m in TRAINED for m in methods):
+        if len(recordings) < 2:  # nothing to train on that is not the recording itself
+            methods = [m for m in methods if m not in TRAINED]
+        else:
+            models = loo_models(recordings, (lambda what: progress(0, 1, what)) if progress else None)
     rows = []
     per_recording = len(conditions) * len(seeds)
     total, done = len(recordings) * per_recording, 0
@@ -192,7 +226,7 @@ def run(recordings: dict[str, EventChunk], conditions: Iterable[Condition], seed
                     progress(done, total, f"{rec} {cond.name} seed {seed}")
                 done += 1
                 keep_curves = curves if seed == seeds[0] else None
-                for row in evaluate(rec, signal, cond, seed, methods, tune, keep_curves):
+                for row in evaluate(rec, signal, cond, seed, methods, tune, keep_curves, models):
                     rows.append({**row, **notes})
     if progress:
         progress(total, total, "")
@@ -256,6 +290,9 @@ def report(rows: list[dict], tune: bool = False) -> str:
             lambda r: f"{fmt(r['tuned_edp'])}/{fmt(100 * r['tuned_tpr'], 0)}")
     overall = _mean_over_recordings(mean) if len(recs) > 1 else []
     parts = []
+    if any(r["method"] in TRAINED for r in mean):
+        parts.append(f"learned: scored leave-one-recording-out — on each recording, a model trained on the other "
+                     f"{len(recs) - 1} only (never on the recording it is scored on)")
     for rec in recs + (["all recordings (mean)"] if overall else []):
         rs = overall if rec == "all recordings (mean)" else mean
         for title, cell in tables.items():

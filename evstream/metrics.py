@@ -203,6 +203,20 @@ def esr(x, y, geometry: Geometry) -> float:
     return math.sqrt(max(ntss * l_n, 0.0))
 
 
+def esr_parts(x, y, geometry: Geometry) -> tuple[float, float, float]:
+    """(NTSS, L_N, ESR) of one packet, as `esr` defines them (NaN for fewer than 2 events)."""
+    x = np.asarray(x, np.int64)
+    y = np.asarray(y, np.int64)
+    n_events = len(x)
+    if n_events < 2:
+        return math.nan, math.nan, math.nan
+    n = np.bincount(y * geometry.width + x, minlength=geometry.n_pixels).astype(np.float64)
+    m = (2 * n_events) // 3
+    ntss = float(np.sum(n * (n - 1))) / (n_events * (n_events - 1))
+    l_n = geometry.n_pixels - float(np.sum((1.0 - m / n_events) ** n))
+    return ntss, l_n, math.sqrt(max(ntss * l_n, 0.0))
+
+
 def mean_esr(x, y, geometry: Geometry, packet_events: int = 30_000) -> float:
     """Mean ESR over consecutive packets of `packet_events` events (E-MLB's protocol: 30 000 events, the
     incomplete last packet dropped); NaN when there is not one full packet."""

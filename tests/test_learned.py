@@ -166,3 +166,47 @@ def test_train_command_writes_a_model_the_pipeline_uses(tmp_path):
     assert main(["archive", "recordings/bar.npz", str(tmp_path / "b.mcap"), "--denoise", "learned",
                  "--model", str(bad)]) == 1
     assert main(["archive", "recordings/bar.npz", str(tmp_path / "c.mcap"), "--model", str(out)]) == 2
+
+
+def test_eval_scores_the_learned_method_leave_one_recording_out():
+    """The model scoring a recording was trained on the others only: its metadata names them."""
+    from evstream import evaluation
+
+    recs = {}
+    for name, seed in (("a", 1), ("b", 2), ("c", 3)):
+        recs[name] = scene("bar", Geometry(96, 72), duration_us=300_000, seed=seed)
+    models = evaluation.loo_models(recs)
+    for name, model in models.items():
+        trained = {r["recording"] for r in model.meta["trained_on"]} if "trained_on" in model.meta else None
+        assert model.meta["name"] == f"trained without {name}"
+        assert trained is None or name not in trained
+    rows = evaluation.run(recs, [evaluation.Condition(noise_ratio=1.0)], [0], ["stcf", "learned"])
+    learned = [r for r in rows if r["method"] == "learned"]
+    assert len(learned) == 3 and all(r["auc"] > 0.9 for r in learned)
+    assert "leave-one-recording-out" in evaluation.report(rows)
+    one = evaluation.run({"a": recs["a"]}, [evaluation.Condition(noise_ratio=1.0)], [0], ["stcf", "learned"])
+    assert {r["method"] for r in one} == {"stcf"}  # nothing to train on but the recording itself
+
+
+def test_no_reference_mesr_and_its_random_baseline():
+    from evstream import metrics, no_reference
+
+    g = Geometry(96, 72)
+    sig = scene("ball", g, duration_us=500_000, seed=4)
+    noisy = inject(sig, NoiseSpec(noise_ratio=1.0), seed=2, t_start_us=0, t_stop_us=500_000)
+    parts = no_reference.mesr_parts(noisy, 5_000)
+    assert parts["mesr"] == pytest.approx(metrics.mean_esr(noisy.x, noisy.y, g, 5_000))
+    assert parts["mesr"] == pytest.approx(np.mean([np.sqrt(a * b) for a, b, _ in (
+        metrics.esr_parts(noisy.x[i:i + 5000], noisy.y[i:i + 5000], g)
+        for i in range(0, parts["packets"] * 5000, 5000))]))
+    rows = no_reference.evaluate("ball", noisy, {"stcf": lambda: build("stage", {"kind": "stcf"})},
+                                 packet_events=5_000)
+    raw, stcf = rows
+    assert raw["kept"] == 1.0 and raw["random_mesr"] == raw["mesr"]
+    assert 0.3 < stcf["kept"] < 0.9
+    kept = build("stage", {"kind": "stcf"})(noisy.replace(label=None)).cls == NoiseClass.SIGNAL
+    assert stcf["mesr"] == pytest.approx(no_reference.mesr_parts(noisy[kept], 5_000)["mesr"])
+    u = np.random.default_rng(0).random(len(noisy))
+    assert stcf["random_mesr"] == pytest.approx(no_reference.mesr_parts(noisy[u < kept.mean()], 5_000)["mesr"])
+    text = no_reference.report(rows)
+    assert "random" in text and "stcf" in text

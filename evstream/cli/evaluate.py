@@ -67,6 +67,8 @@ def cmd_eval(args) -> int:
     if not recordings:
         raise UsageError("no recording to evaluate")
     methods = args.methods.split(",") if args.methods else list(evaluation.METHODS)
+    if args.no_reference:
+        return _no_reference(recordings, methods)
     conditions = [evaluation.Condition(noise_ratio=r) for r in args.ratios] + [
         evaluation.Condition(ba_rate_hz=r) for r in args.rates_hz]
     curves: dict = {}
@@ -95,6 +97,27 @@ def cmd_eval(args) -> int:
         except ImportError:
             print("evstream eval: matplotlib is not installed; no ROC plot (pip install matplotlib)",
                   file=sys.stderr)
+    return 0
+
+
+def _no_reference(recordings: dict, methods: list[str]) -> int:
+    """`eval --no-reference`: the recordings' own (real) noise, no labels: MESR per method."""
+    from .. import evaluation, no_reference
+    from ..pipeline import build
+
+    unknown = set(methods) - set(evaluation.METHODS)
+    if unknown:
+        raise UsageError(f"--methods: unknown {sorted(unknown)}; known: {', '.join(evaluation.METHODS)}")
+    factories = {}
+    for m in methods:
+        if m == "learned":  # no labels, nothing to train on: the shipped model
+            factories[m] = lambda: build("stage", {"kind": "learned"})
+        elif m not in ("refractory", "hotpixel"):
+            factories[m] = evaluation.METHODS[m]
+    print(no_reference.report(no_reference.run(recordings, factories)))
+    if "learned" in factories:
+        print("learned: the shipped model (trained on the synthetic scenes and the MIT-licensed recordings "
+              "davis346_frames_imu_evlib.aedat4 and prophesee_gen3_vga_evt2_faery.raw)")
     return 0
 
 
@@ -162,6 +185,8 @@ def add_eval_parser(sub) -> None:
     p.add_argument("--seeds", type=int, default=2, help="noise seeds per condition")
     p.add_argument("--tune", action="store_true", help="tune each threshold on the first half, report the second")
     p.add_argument("--min-duration-s", type=float, default=0.25, help="skip shorter recordings")
+    p.add_argument("--no-reference", action="store_true",
+                   help="no injected noise: each method on the recordings' own noise, scored by MESR (E-MLB)")
     p.add_argument("--json", metavar="FILE", help="write every result row as JSON")
     p.add_argument("--roc", metavar="FILE.png", help="plot ROC curves")
     p.add_argument("--roc-condition", help="noise condition of the ROC plot, e.g. 100%% or 3Hz (default 100%%)")
