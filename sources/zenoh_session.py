@@ -16,13 +16,17 @@ import time
 import zenoh
 
 __all__ = [
-    "DEFAULT_ENDPOINT", "DEFAULT_MAX_PACKET_BYTES", "MESSAGE_OVERHEAD_BYTES", "MODES", "check_endpoint", "config",
-    "drain", "endpoints", "message_limit", "open_session", "watch_transports",
+    "BLOCK_WAIT_BEFORE_CLOSE_S", "DEFAULT_ENDPOINT", "DEFAULT_MAX_PACKET_BYTES", "MESSAGE_OVERHEAD_BYTES", "MODES",
+    "check_endpoint", "config", "drain", "endpoints", "message_limit", "open_session", "watch_transports",
 ]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_MAX_PACKET_BYTES = 64 << 20  # the largest EventPacket payload a subscriber or router takes
 MESSAGE_OVERHEAD_BYTES = 64 << 10  # key, encoding, attachment and framing around a payload
+# How long a BLOCK put may wait for room in a link's queue before Zenoh closes the link (its default is
+# 5 s: a subscriber that paused 5 s lost its link and everything in flight). Longer than the link lease
+# (10 s), so the lease decides: a peer that reads nothing for that long is taken as gone.
+BLOCK_WAIT_BEFORE_CLOSE_S = 60.0
 MODES = ("peer", "client", "router")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s]+$")
 
@@ -53,6 +57,8 @@ def config(*, mode: str = "peer", listen=(), connect=(), multicast: bool = False
     c.insert_json5("connect/endpoints", json.dumps(connect))
     c.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
     c.insert_json5("transport/link/rx/max_message_size", json.dumps(message_limit(max_packet_bytes)))
+    c.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
+                   json.dumps(int(BLOCK_WAIT_BEFORE_CLOSE_S * 1e6)))
     return c
 
 

@@ -10,6 +10,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -600,3 +601,51 @@ def test_a_huge_put_is_dropped_by_the_transport_before_it_fills_a_router_or_subs
     c1 = out["cameras"]["cam1"]
     assert c1["packets"] == 3 and c1["events"] == 3000 and c1["oversized"] == 0
     assert c1["missing"] == 2 and c1["gaps"] == 1 and c1["last_seq"] == 4
+
+
+def _cycled_packets(n: int):
+    """`n` EventPackets (seq 0..n-1) of the turntable, 1000 events each, cycled with time moving on."""
+    import dataclasses
+
+    from evstream.codecs.event_packet import decode_packet
+
+    t, x, y, p, g = _events(TURNTABLE)
+    base = [decode_packet(encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
+                                                  width=g.width, height=g.height)))
+            for i in range(0, len(t) - 1000, 1000)]
+    span_ns = (int(t[-1]) + 1) * 1000
+    return (encode_packet(dataclasses.replace(base[k % len(base)], seq=k,
+                                              time_base=base[k % len(base)].time_base + (k // len(base)) * span_ns))
+            for k in range(n))
+
+
+def test_block_survives_a_subscriber_that_pauses_longer_than_zenohs_5_s(procs):
+    """A --flow block subscriber stopped for 7 s while a BLOCK publisher streams: the publisher waits, then
+    everything arrives. With Zenoh's default (block/wait_before_close 5 s) the router closed the
+    subscriber's link after 5 s and what was in flight was lost (counted in `missing`)."""
+    port = free_port()
+    procs.router(port)
+    sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--depth", "8", "--until-end",
+                           "--idle-s", "60")
+    n = 20_000  # ~6 KB each, 120 MB: more than the links and queues hold
+    session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        pub = matched_publisher(session, "evstream/cam1/events")
+        time.sleep(0.5)
+        os.kill(sub.pid, signal.SIGSTOP)
+        put_before_resume = []
+        resume = threading.Timer(7.0, lambda: (put_before_resume.append(k), os.kill(sub.pid, signal.SIGCONT)))
+        resume.start()
+        for k, data in enumerate(_cycled_packets(n)):
+            pub.put(data, attachment=encode_attachment(k, time.time_ns()))
+        resume.join()
+        assert put_before_resume and put_before_resume[0] < n - 1, "the publisher was not held back"
+        drain(session, 60)
+        pub.delete()
+        drain(session)
+        out = procs.result(sub, timeout_s=60)
+    finally:
+        session.close()
+    c1 = out["cameras"]["cam1"]
+    assert "lost the connection" not in procs.stderr(sub)
+    assert c1["missing"] == 0 and c1["malformed"] == 0 and c1["packets"] == n
