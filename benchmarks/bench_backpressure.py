@@ -32,12 +32,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import zenoh
+from evstream.sources import native
+from evstream.sources.zenoh_session import open_session
 
 from evstream.codecs.attachment import encode_attachment
 from evstream.codecs.event_packet import encode_packet
 from evstream.codecs.packets import to_packet
-from evstream.sources import native
-from evstream.sources.zenoh_session import open_session
 
 from .bench_viewer import make_recording
 

@@ -57,14 +57,9 @@ def cmd_publish(args) -> int:
             print(f"evstream: warning: no subscriber on {args.key} after {args.wait_subscribers:g} s; "
                   "publishing anyway", file=sys.stderr)
         t0 = time.perf_counter()
-        unmatched_packets = unmatched_events = 0  # put while no subscriber matched: they went to no one
         with StopOnSignal() as stop:
             for packet in stop.chunks(paced(packetize(source, args.packet_us), args.speed)):
-                matched, before = pub.matching, pub.packets
                 pub.put_events(packet.t, packet.x, packet.y, packet.p, width=g.width, height=g.height)
-                if not matched:
-                    unmatched_packets += pub.packets - before
-                    unmatched_events += len(packet)
         wall = time.perf_counter() - t0
         pub.end()
         drain(session, args.drain_s)
@@ -74,6 +69,7 @@ def cmd_publish(args) -> int:
         pub.close()
     finally:
         session.close()
+    unmatched_packets, unmatched_events = pub.unmatched_packets, pub.unmatched_events
     summary = {"key": args.key, "packets": pub.packets, "events": pub.events, "bytes": pub.bytes,
                "unmatched_packets": unmatched_packets, "unmatched_events": unmatched_events,
                "wall_s": wall, "events_per_s": pub.events / wall if wall > 0 else 0.0,

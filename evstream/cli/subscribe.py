@@ -135,6 +135,7 @@ def cmd_subscribe(args) -> int:
                      events_background=int(cam.per_class[NoiseClass.BACKGROUND]),
                      events_hot_pixel=int(cam.per_class[NoiseClass.HOT_PIXEL]), frames=cam.frames,
                      published_events=cam.published_events, published_packets=cam.published_packets,
+                     published_unmatched_packets=cam.published_unmatched_packets,
                      archives=cam.archives)
         cams[name] = d
     summary = {"keyexpr": args.keyexpr, "flow": flow, "cameras": cams, **totals, "wall_s": wall,

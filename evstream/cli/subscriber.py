@@ -41,6 +41,7 @@ class Camera:
         self.frames = 0
         self.published_events = 0
         self.published_packets = 0
+        self.published_unmatched_packets = 0  # republished while nobody read the cleaned stream
         self.archives: list[str] = []
         self.open(geometry)
 
@@ -99,6 +100,7 @@ class Camera:
         if self.pub is not None:
             self.published_events += self.pub.publisher.events
             self.published_packets += self.pub.publisher.packets
+            self.published_unmatched_packets += self.pub.publisher.unmatched_packets
         self.sinks, self.pub = [], None
 
     def restart(self, geometry) -> None:
@@ -222,6 +224,8 @@ def print_summary(s: dict) -> None:
                 line += f" (after the first second: p99 {c['latency_warm_p99_ms']:.1f} ms)"
         print(line)
         if c.get("published_packets"):
-            print(f"    republished {c['published_events']:,} events in {c['published_packets']:,} packets")
+            print(f"    republished {c['published_events']:,} events in {c['published_packets']:,} packets"
+                  + (f"; {c['published_unmatched_packets']:,} of them while no subscriber matched: nobody "
+                     "received those" if c.get("published_unmatched_packets") else ""))
         for path in c.get("archives", []):
             print(f"    wrote {path}")
