@@ -83,7 +83,7 @@ def cmd_eval(args) -> int:
                               progress=say, curves=curves)
     finally:
         progress.done()
-    print(evaluation.report(rows, tune=args.tune))
+    print(evaluation.markdown(rows, tune=args.tune) if args.markdown else evaluation.report(rows, tune=args.tune))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(evaluation.as_json_rows(rows), indent=1))
@@ -190,5 +190,7 @@ def add_eval_parser(sub) -> None:
     p.add_argument("--json", metavar="FILE", help="write every result row as JSON")
     p.add_argument("--roc", metavar="FILE.png", help="plot ROC curves")
     p.add_argument("--roc-condition", help="noise condition of the ROC plot, e.g. 100%% or 3Hz (default 100%%)")
+    p.add_argument("--markdown", action="store_true",
+                   help="print the mean over recordings as Markdown tables (docs/evaluation.md's, docs/generated.py)")
     add_quiet_flag(p)
     p.set_defaults(func=cmd_eval)
