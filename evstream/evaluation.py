@@ -325,6 +325,9 @@ def markdown(rows: list[dict], tune: bool = False) -> str:
         tables[TUNED_TABLE[0]] = TUNED_TABLE[1]
     parts = [f"Mean over {len(recs)} recording{'s' if len(recs) > 1 else ''} ({', '.join(recs)}), "
              f"{max(r['seeds'] for r in mean)} seed(s) per condition."]
+    if any(r["method"] in TRAINED for r in mean):
+        parts[0] += (" learned: scored leave-one-recording-out (on each recording, a model trained on the other "
+                     f"{len(recs) - 1} only).")
     for title, (values, digits, bold) in tables.items():
         text = {k: [fmt(v, digits) for v in values(r)] for k, r in by.items()}
         best = {}
