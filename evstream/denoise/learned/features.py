@@ -77,8 +77,10 @@ def new_state(width: int, height: int) -> dict:
     return {
         "width_padded": wp,
         "last": np.full((height + 2 * r) * wp, NEVER_US << 1, np.int64),  # (t << 1) | p
-        "hsum": padded_map(width, height, r, np.uint16, planes=2),  # counts per 20 ms < 65536
-        "own": np.zeros(width * height, np.int32),
+        # one row-summed map, each cell packing (all events) | (ON events) << 16: one read per row gives
+        # both N and N_ON (counts per 20 ms in a 5×5 box stay far below 65536)
+        "hsum": padded_map(width, height, r, np.uint32),
+        "own": np.zeros(width * height, np.uint16),
         "block": np.zeros(-(-width // BLOCK_PX) * -(-height // BLOCK_PX), np.int32),
         "block_log_scale": block_log_scale(width, height),
         "offsets": offsets(wp),
@@ -118,7 +120,6 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
         mask = cap - 1
         head = fifo_state[0]
         size = fifo_state[1]
-        plane = (height + 2 * R) * width_padded
         bw = (width + 15) // 16
         log_global_scale = math.log(25.0 / (width * height))
         n = len(t)
@@ -134,7 +135,8 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 ti = t[ix(i)]
                 oldest = ti - WINDOW_US
                 while size > 0 and fifo_t[ix(head)] <= oldest:
-                    row_add(hsum, fifo_pos[ix(head)], -1, L)
+                    pos = fifo_pos[ix(head)]  # the cell; bit 40 says ON
+                    row_add(hsum, pos & 0xFFFFFFFFFF, -(1 + ((pos >> 40) << 16)), L)
                     packed = fifo_pix[ix(head)]
                     own[ix(packed & 0xFFFFFFFF)] -= 1
                     block[ix(packed >> 32)] -= 1
@@ -144,8 +146,10 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 yi = np.intp(y[ix(i)])
                 pi = np.intp(p[ix(i)])
                 corner = yi * width_padded + xi
-                n0 = column_sum(hsum, corner + R, width_padded, L)
-                n1 = column_sum(hsum, plane + corner + R, width_padded, L)
+                packed_sum = column_sum(hsum, corner + R, width_padded, L)
+                n_all = packed_sum & 0xFFFF
+                n1 = packed_sum >> 16  # ON events in the box
+                n0 = n_all - n1
                 pix = yi * width + xi
                 b = (yi >> 4) * bw + (xi >> 4)
                 own_c = own[ix(pix)]
@@ -193,13 +197,13 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                     out_score[ix(i)] = s
                 # branchless: 0 kept, else 1 (background) or 2 (the pixel's own recent count is high)
                 codes[ix(i)] = (s < threshold) * (1 + (own_c >= hot_min))
-                pos = pi * plane + corner + R * width_padded
-                row_add(hsum, pos, 1, L)
+                pos = corner + R * width_padded
+                row_add(hsum, pos, 1 + (pi << 16), L)
                 own[ix(pix)] += 1
                 block[ix(b)] += 1
                 slot = (head + size) & mask
                 fifo_t[ix(slot)] = ti
-                fifo_pos[ix(slot)] = pos
+                fifo_pos[ix(slot)] = pos | (pi << 40)
                 fifo_pix[ix(slot)] = (b << 32) | pix
                 size += 1
                 last[ix(centre)] = (ti << 1) | pi
