@@ -23,7 +23,7 @@ from zlib_ng import zlib_ng
 
 MAX_HEADER_BYTES = 1 << 20  # npy 2.0/3.0 headers; 1.0 headers stop at 65,535 bytes by format
 MAX_DEFLATE_RATIO = 1032  # deflate's best case (runs of one byte): more is not a deflate stream
-READ_BYTES = 1 << 20  # compressed bytes handed to the inflater at a time
+READ_BYTES = 1 << 18  # compressed bytes handed to the inflater at a time
 SMALL_MEMBER_BYTES = 64 << 20  # a member read whole (width, height, meta): at most this
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from evstream.events import EventError, Geometry
 
 from . import npy_stream
-from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit
+from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
 
 NAME = "NumPy .npy / .npz (structured or struct of arrays)"
 FORMAT = "npy"
@@ -45,6 +45,7 @@ class NumpySource(FileSource):
     def __init__(self, path, columns: str | None = None, time_unit: str | None = None, **options):
         super().__init__(path, **options)
         self._npz = None
+        self._fields: dict | None = None  # .npz of t/x/y/p members: their names, read as streams
         self._rows = None  # .npy with one event per row: (byte of row 0, bytes per row), for error offsets
         try:
             with builtins.open(self.path, "rb") as f:
@@ -64,17 +65,26 @@ class NumpySource(FileSource):
             raise
         except Exception as e:  # numpy reports a corrupt header as anything from EOFError to SyntaxError
             raise self.error(f"unreadable NumPy file: {type(e).__name__}: {e}") from None
-        n = len(self._cols["t"])
-        if any(len(a) != n for a in self._cols.values()):
-            raise self.error(f"arrays differ in length: { {k: len(a) for k, a in self._cols.items()} }")
+        if self._cols is None:  # an .npz of t, x, y, p members: streamed, never held whole
+            try:
+                members = self._members()
+            except ValueError as e:
+                raise self.error(f"unreadable NumPy file: {e}") from None
+            lengths = {k: m.rows for k, m in members.items()}
+            t_sample = np.empty(0, members["t"].dtype)
+        else:
+            lengths = {k: len(a) for k, a in self._cols.items()}
+            t_sample = self._cols["t"]
+        n = lengths["t"]
+        if any(v != n for v in lengths.values()):
+            raise self.error(f"arrays differ in length: {lengths}")
         self.n_events = n
-        self.time_unit = time_unit or guess_time_unit(self._cols["t"])
+        self.time_unit = time_unit or guess_time_unit(t_sample)
         if self.geometry is None:
             mx = my = 0
-            step = 1 << 22
-            for a in range(0, n, step):
-                mx = max(mx, int(np.max(self._cols["x"][a : a + step])))
-                my = max(my, int(np.max(self._cols["y"][a : a + step])))
+            for x, y in self._xy_pieces():
+                if len(x):
+                    mx, my = max(mx, int(np.max(x))), max(my, int(np.max(y)))
             self.set_geometry(fit_geometry(mx, my), "fitted to the events (the file has no size)")
         self.details = {"events": n, "time_unit": self.time_unit}
 
@@ -136,17 +146,47 @@ class NumpySource(FileSource):
                 if isinstance(e, EventError):
                     raise
                 raise self.error(f"sensor size members are not two integers: {e}") from None
-            cols = {k: z[v] for k, v in f.items()}
-            for k, a in cols.items():
-                if a.ndim != 1:
-                    raise self.error(f"array {f[k]!r} of shape {a.shape}: one value per event expected")
-            return cols
+            self._fields = f
+            return None
         if len(z.files) == 1:
             return self._from_array(z[z.files[0]], columns)
         raise self.error(f"no t/x/y/p arrays among {z.files}")
 
+    def _members(self, keys: str = "txyp") -> dict:
+        """Fresh streams of the .npz members holding `keys` (each is read once), their shapes checked."""
+        members = {k: self._npz.member(self._fields[k]) for k in keys}
+        for k, m in members.items():
+            if len(m.shape) != 1 or m.dtype.kind not in "iufb":
+                raise ValueError(f"array {self._fields[k]!r}: {m.dtype} of shape {m.shape}, not one number per event")
+        return members
+
+    def _xy_pieces(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        if self._cols is not None:
+            step = 1 << 22
+            for a in range(0, self.n_events, step):
+                yield self._cols["x"][a : a + step], self._cols["y"][a : a + step]
+            return
+        try:
+            for block in npy_stream.lockstep(self._members("xy"), 1 << 16):
+                yield block["x"], block["y"]
+        except ValueError as e:
+            raise self.error(f"unreadable NumPy file: {e}") from None
+
     def _blocks(self) -> Iterator[Block]:
-        return self._column_blocks(self._cols, self.n_events, self.time_unit, self._rows)
+        if self._cols is not None:
+            yield from self._column_blocks(self._cols, self.n_events, self.time_unit, self._rows)
+            return
+        done = 0
+        step = max(1, self.block_bytes // 16)
+        try:
+            for block in npy_stream.lockstep(self._members(), step):
+                done += len(block["t"])
+                self.fraction_read = done / max(1, self.n_events)
+                yield to_events(self, block["t"], block["x"], block["y"], block["p"], self.time_unit)
+        except ValueError as e:
+            if isinstance(e, EventError):
+                raise
+            raise self.error(f"unreadable NumPy file: {e}") from None
 
 
 class _Npz:
@@ -158,10 +198,11 @@ class _Npz:
             self._infos = {i.filename[:-4]: i for i in z.infolist() if i.filename.endswith(".npy")}
         self.files = list(self._infos)
 
+    def member(self, name: str) -> npy_stream.Member:
+        return npy_stream.Member(self.path, self._infos[name], os.path.getsize(self.path))
+
     def get(self, name: str, limit: int | None = None) -> np.ndarray:
-        info = self._infos[name]
-        m = npy_stream.Member(self.path, info, os.path.getsize(self.path))
-        return m.read(limit=info.file_size if limit is None else limit)
+        return self.member(name).read(limit=self._infos[name].file_size if limit is None else limit)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.get(name)

@@ -164,3 +164,19 @@ def _error_of(path) -> str:
     except EventError as e:
         return str(e)
     return "no error"
+
+
+def test_plain_npz_streams_in_constant_memory(tmp_path):
+    """An .npz of t, x, y, p (not evstream's own) is streamed too: its members were loaded whole."""
+    peaks = []
+    for n in (1_000_000, 4_000_000):
+        s = random_stream(1, n, G)
+        np.savez_compressed(tmp_path / f"{n}.npz", t=s.t, x=s.x, y=s.y, p=s.p)
+        count(tmp_path / f"{n}.npz")  # first read: kernels loaded
+        tracemalloc.start()
+        try:
+            assert count(tmp_path / f"{n}.npz") == n
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    assert peaks[1] < 1.2 * peaks[0] + (2 << 20), peaks
