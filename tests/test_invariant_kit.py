@@ -195,3 +195,98 @@ def test_frames_equal_catches_each_kind_of_difference():
                     Frame(f.t_start, f.t_end, f.n_events, counts)):
         with pytest.raises(AssertionError, match="frame 2 differs"):
             assert_frames_equal(frames[:2] + [changed] + frames[3:], frames)
+
+
+# -- the kit's own generators: what the invariant checks rely on them to produce ----------------------
+def test_random_stream_has_the_stress_it_promises():
+    """Bursts of equal timestamps (30 % of gaps), 60/30/10 % signal/background/hot labels, signal in a
+    blob (neighbours within ~1.5 px) that wanders over the whole sensor, hot events on a few pixels,
+    events on all four borders, both polarities; deterministic per seed; t from t0_us on."""
+    from evstream.events import Geometry
+
+    g = Geometry(24, 18)
+    s = random_stream(5, 20_000, g, t0_us=1000)
+    assert len(s) == 20_000 and s.geometry == g and s.t.dtype == np.int64 and s.label.dtype == np.uint8
+    assert s.t[0] >= 1000 and (np.diff(s.t) >= 0).all()
+    assert 0.27 < np.mean(np.diff(s.t) == 0) < 0.33 and s.t[-1] - s.t[0] > 20_000 * 50 * 0.6
+    share = np.bincount(s.label, minlength=3) / len(s)
+    assert abs(share[0] - 0.6) < 0.02 and abs(share[1] - 0.3) < 0.02 and abs(share[2] - 0.1) < 0.02
+    sig = s.label == NoiseClass.SIGNAL
+    xs, ys = s.x[sig].astype(float), s.y[sig].astype(float)
+    inner = (xs > 2) & (xs < g.width - 3) & (ys > 2) & (ys < g.height - 3)
+    dx = np.abs(np.diff(xs[inner]))  # consecutive signal events: two draws around nearly the same centre
+    assert 1.2 < dx.mean() < 1.8 and np.percentile(dx, 99) < 8  # sd 1.5 each: E|d| ~ 1.5
+    assert np.percentile(xs, 3) < 2 and np.percentile(xs, 97) > g.width - 3  # the blob crosses the sensor
+    assert np.percentile(ys, 3) < 2 and np.percentile(ys, 97) > g.height - 3
+    hot = s.label == NoiseClass.HOT_PIXEL
+    assert len(np.unique(s.y[hot])) == 1  # one hot pixel (5 % of all events are moved to a side border)
+    for axis, size in ((s.x, g.width), (s.y, g.height)):
+        assert axis.min() == 0 and axis.max() == size - 1
+    assert np.mean((s.x == 0) | (s.x == g.width - 1)) > 0.05
+    assert 0.48 < s.p.mean() < 0.52 and set(np.unique(s.p)) == {0, 1}
+    again = random_stream(5, 20_000, g, t0_us=1000)
+    assert all(np.array_equal(getattr(s, k), getattr(again, k)) for k in ("t", "x", "y", "p", "label"))
+    none = random_stream(6, 2000, g, hot_pixels=0)
+    assert not (none.label == NoiseClass.HOT_PIXEL).any() and (none.label == NoiseClass.BACKGROUND).mean() > 0.35
+    many = random_stream(6, 5000, g, hot_pixels=3)
+    h = many.label == NoiseClass.HOT_PIXEL
+    pixels = np.unique(many.x[h].astype(np.int64) * 1000 + many.y[h])
+    assert 1 < len(pixels) <= 3 + 2 * 3  # three, and their rows' border pixels (the 5 % border events)
+    empty = random_stream(7, 0, g, t0_us=42)
+    assert len(empty) == 0 and empty.t_end == 42 and empty.geometry == g and empty.label is not None
+    rng = np.random.default_rng(1)
+    assert not np.array_equal(random_stream(rng, 50).t, random_stream(rng, 50).t)  # a Generator is used as is
+
+
+def test_random_bounds_draw_every_kind_of_split():
+    """From one chunk (plus the forced one-event chunk) to max_chunks, a trailing empty chunk in ~30 %."""
+    sizes, trailing = set(), 0
+    for seed in range(400):
+        b = random_bounds(seed, 10_000)
+        distinct = sorted(set(b))
+        assert distinct[0] == 0 and distinct[-1] == 10_000 and b == sorted(b)
+        assert any(q - p == 1 for p, q in zip(distinct, distinct[1:]))  # a one-event chunk
+        sizes.add(len(distinct))
+        trailing += b[-1] == b[-2]
+    assert sizes == set(range(4, 16))  # k - 1 cuts for k in 1..12, plus 0, n and the one-event chunk
+    assert 80 < trailing < 160
+    for seed in range(20):
+        b = random_bounds(seed, 2)
+        assert sorted(set(b)) == [0, 1, 2]
+        assert set(random_bounds(seed, 0)) == {0}
+
+
+def test_compare_says_what_differs():
+    from evstream.testing import _compare, classify_all
+
+    with pytest.raises(AssertionError, match=r"here: outputs differ \(first differing positions: \[1 3\]\)"):
+        _compare(np.array([0, 1, 0, 1], np.uint8), np.array([0, 0, 0, 0], np.uint8), "here")
+    with pytest.raises(AssertionError, match=r"first differing positions: shape \(\(3,\)"):
+        _compare(np.zeros(3, np.uint8), np.zeros(2, np.uint8), "here")
+    with pytest.raises(AssertionError, match="outputs differ"):
+        _compare(np.zeros(3, np.uint8), np.zeros(3, np.int64), "dtype")
+    with pytest.raises(AssertionError, match=r"first differing positions: \[0 1 2 3 4 5 6 7 8 9\]\)"):
+        _compare(np.zeros(12, np.uint8), np.ones(12, np.uint8), "ten")
+    with pytest.raises(TypeError, match="cannot compare <class 'int'>"):
+        _compare(1, 1, "ints")
+    empty = classify_all(LastSeen(), [])
+    assert empty.dtype == np.uint8 and empty.shape == (0,)
+    with pytest.raises(AssertionError, match="one-event chunks: outputs differ"):
+        assert_chunk_invariant(PerChunk, random_stream(1, 200), 1, splits=0)
+
+
+def test_bounded_state_measures_what_it_holds():
+    from collections import deque
+
+    from evstream.testing import state_nbytes
+
+    a = np.zeros(100, np.int64)
+    assert state_nbytes(a) == 800 and state_nbytes([a, a]) == 16 + 800  # shared arrays once
+    assert state_nbytes(deque([a])) == 8 + 800 and state_nbytes({"k": a}) == 800 and state_nbytes(3) == 0
+    assert state_nbytes(LastSeen()) == 18 * 24 * 8
+    cyc = []
+    cyc.append(cyc)
+    assert state_nbytes(cyc) == 8
+    with pytest.raises(AssertionError, match=r"state grows with stream length: \d+ B after 2000 events, \d+ B "
+                                             r"after 16000"):
+        assert_bounded_state(Hoards, lambda n: random_stream(0, n))
