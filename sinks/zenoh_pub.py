@@ -110,8 +110,9 @@ class PacketPublisher:
             self.bytes += len(data)
 
     def end(self) -> None:
-        """Mark the end of the stream (a DELETE on the key)."""
-        self._pub.delete()
+        """Mark the end of the stream: a DELETE on the key, whose attachment's `seq` is the number of packets
+        sent (the next seq), so a subscriber counts packets lost just before the end in `missing` too."""
+        self._pub.delete(attachment=encode_attachment(self.seq, time.time_ns()))
 
     def close(self) -> None:
         """Nothing to do: the publisher goes with its session. (Undeclaring it explicitly was seen to

@@ -23,10 +23,11 @@ __all__ = [
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_MAX_PACKET_BYTES = 64 << 20  # the largest EventPacket payload a subscriber or router takes
 MESSAGE_OVERHEAD_BYTES = 64 << 10  # key, encoding, attachment and framing around a payload
-# How long a BLOCK put may wait for room in a link's queue before Zenoh closes the link (its default is
-# 5 s: a subscriber that paused 5 s lost its link and everything in flight). Longer than the link lease
-# (10 s), so the lease decides: a peer that reads nothing for that long is taken as gone.
-BLOCK_WAIT_BEFORE_CLOSE_S = 60.0
+# How long a BLOCK put may wait for room in a link's queue before Zenoh closes the link. Zenoh's default,
+# 5 s, cut off a subscriber that paused 5 s and lost everything in flight. As long as the link lease
+# (10 s), which ends the link of a peer that reads nothing for that long anyway: longer only held every
+# publisher behind a router that long after a subscriber had gone (60 s measured with 60).
+BLOCK_WAIT_BEFORE_CLOSE_S = 10.0
 MODES = ("peer", "client", "router")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s]+$")
 

@@ -208,6 +208,16 @@ class ZenohSubscription:
             st = self.cameras[camera] = CameraStats()
         if sample.kind == zenoh.SampleKind.DELETE:
             st.ended = True
+            att = sample.attachment
+            if att is not None and len(att) <= MAX_ATTACHMENT_BYTES and st.last_seq is not None:
+                try:
+                    a = decode_attachment(att.to_bytes())
+                except AttachmentError:
+                    a = None
+                # our end mark carries the count of packets sent: those after the last one taken were lost
+                if a is not None and a.kind == OURS and a.seq > st.last_seq + 1:
+                    st.gaps += 1
+                    st.missing += a.seq - st.last_seq - 1
             return End(camera, key)
         n = len(sample.payload)
         if n > self.max_packet_bytes:

@@ -677,3 +677,26 @@ def test_a_republishing_node_counts_what_it_put_after_its_reader_was_killed(proc
     cam = out["cameras"]["cam1"]
     assert cam["events"] == sent["events"] and cam["missing"] == 0
     assert 0 < cam["published_unmatched_packets"] < cam["published_packets"]
+
+
+def test_packets_lost_just_before_the_end_mark_are_counted(procs):
+    """The end mark carries the number of packets sent: packets lost after the last one that arrived (no
+    later packet reveals the gap) are counted in `missing` too."""
+    port = free_port()
+    procs.router(port)
+    sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--until-end", "--idle-s", "30")
+    t, x, y, p, g = _events(TURNTABLE)
+    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
+                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 2000, 1000))]
+    session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+    try:
+        pub = matched_publisher(session, "evstream/cam1/events")
+        for k in (0, 1):
+            pub.put(good[k], attachment=encode_attachment(k, time.time_ns()))
+        pub.delete(attachment=encode_attachment(5, time.time_ns()))  # 5 sent: seq 2, 3 and 4 never arrived
+        drain(session)
+        out = procs.result(sub, timeout_s=30)
+    finally:
+        session.close()
+    c1 = out["cameras"]["cam1"]
+    assert c1["packets"] == 2 and c1["missing"] == 3 and c1["gaps"] == 1 and c1["ended"]
