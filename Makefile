@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint recordings model clean clean-cache
+.PHONY: demo test bench lint recordings model mutation clean clean-cache
 
 # PYTHONWARNINGS: setuptools' "Editable installation" notice is information, not a warning about this project
 $(STAMP): pyproject.toml
@@ -18,6 +18,13 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# Mutation testing (docs/testing.md), not part of CI: hours for all modules on 2 cores.
+# `make mutation MODULES="testing codecs"` for some; scores and survivors under out/mutation/.
+MODULES ?=
+mutation: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[mutation]'
+	$(BIN)/python tests/mutation.py $(MODULES)
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks
