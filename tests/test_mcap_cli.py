@@ -64,12 +64,12 @@ def test_archive_usage_errors(recording, tmp_path):
     assert main(["archive", str(tmp_path / "missing.npz"), str(tmp_path / "a.mcap")]) == 1
 
 
-def _start(recording, out, *extra):
+def _start(recording, out, *extra, chunks=3):
     proc = subprocess.Popen([EVSTREAM, "archive", str(recording), str(out), "--denoise", "truth", "--speed", "1",
                              "--flush-s", "0.1", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:  # wait until a few chunks are on disk (beside OUT until whole)
-        if len(_complete_chunks(_part(out))) >= 3:
+        if len(_complete_chunks(_part(out))) >= chunks:
             return proc
         if proc.poll() is not None:
             raise AssertionError(f"archiver ended early: {proc.communicate()}")
@@ -106,8 +106,7 @@ def _full_archive(recording, tmp_path):
 
 def test_sigkill_loses_at_most_the_chunk_in_progress(recording, tmp_path):
     out = tmp_path / "killed.mcap"
-    proc = _start(recording, out)
-    time.sleep(0.3)
+    proc = _start(recording, out, chunks=5)  # a bounded wait for chunks on disk, not a fixed sleep
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL
