@@ -15,6 +15,7 @@ from evstream.framing.represent import (
     NEVER_US,
     REPRESENTATIONS,
     Representation,
+    last_time_of,
     surface,
     timestamp_kernel,
     voxel_kernel,
@@ -229,3 +230,30 @@ def test_state_is_bounded(window):
 def test_cameras_are_independent(kind):
     streams = [labelled(k, 500) for k in range(3)]
     assert_cameras_independent(make(kind, "adaptive"), streams, 2, framer=True)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.booleans())
+def test_last_time_kernel_matches_plain_python(seed, n, use_cls):
+    rng = np.random.default_rng(seed)
+    w, hw = 5, 20
+    t = np.sort(rng.integers(0, 10**6, n)).astype(np.int64)
+    x, y = rng.integers(0, w, n).astype(np.uint16), rng.integers(0, 4, n).astype(np.uint16)
+    p, cls = rng.integers(0, 2, n).astype(np.uint8), rng.integers(0, 3, n).astype(np.uint8)
+    a, b = sorted(rng.integers(0, n + 1, 2)) if n else (0, 0)
+    last = np.full(2 * hw, NEVER_US, np.int64)
+    last_time_of(t, x, y, p, cls, use_cls, a, b, w, hw, last)
+    ref = [NEVER_US] * (2 * hw)
+    for i in range(a, b):
+        if not use_cls or cls[i] == 0:
+            ref[p[i] * hw + y[i] * w + x[i]] = int(t[i])
+    assert last.tolist() == ref
+
+
+@pytest.mark.parametrize("window", sorted(WINDOWS))
+def test_time_surface_under_many_splits(window):
+    for seed in range(8):
+        stream = labelled(100 + seed, 600)
+        assert_chunk_invariant(make("timesurface", window), stream, seed, apply=frames_of, splits=3)
+        assert_chunk_invariant(make("timesurface", window, all_events=True), stream, seed, apply=frames_of,
+                               splits=2, one_event=False)

@@ -19,9 +19,9 @@ Per window [t_start, t_end) holding n counted events (SIGNAL ones unless `all_ev
   window's span (for fixed-count windows t_start and t_end − 1 are the first and last events, as in
   the paper and tonic).
 
-State: the events a still open window may hold (times and flat pixel indices, in stream order) and,
-for the time surface, one int64 per pixel and polarity: memory O(W·H + events per window), never the
-stream. Each window's array is computed when it closes from the buffered events in stream order, so
+State: the events a still open window may hold (times and flat pixel indices, in stream order); the
+time surface holds none, only one int64 per pixel and polarity: memory O(W·H + events per window),
+never the stream. Each window's array is computed when it closes from the buffered events in stream order, so
 it is bit-identical however the stream was chunked. Arrays are fresh, C-contiguous float32:
 `torch.from_numpy(rep.data)` shares them without a copy.
 """
@@ -91,10 +91,15 @@ def timestamp_kernel(buf_t, buf_f, a, b, t_start, t_end, out):
 
 
 @njit(cache=True, nogil=True)
-def last_time_kernel(buf_t, buf_f, a, b, last_t):
-    """last_t[f] = t of the newest event [a, b) at each flat index f."""
-    for j in range(a, b):
-        last_t[buf_f[j]] = buf_t[j]
+def last_time_of(t, x, y, p, cls, use_cls, a, b, width, hw, last_t):
+    """last_t[p·H·W + y·W + x] = t of the newest counted event [a, b) of a chunk at each pixel."""
+    if use_cls:
+        for i in range(a, b):
+            if cls[i] == 0:
+                last_t[p[i] * hw + y[i] * width + x[i]] = t[i]
+        return
+    for i in range(a, b):
+        last_t[p[i] * hw + y[i] * width + x[i]] = t[i]
 
 
 EXP_FLOOR = -110.0  # float32 exp underflows to 0 below about −103.97
@@ -289,11 +294,7 @@ class RepresentationFramer(FramerBase):
         else:
             start = getattr(self.inner, "start", None)
             keep = buf.end if start is None else buf.index_of_time(start, buf.base)
-        buf.drop_before(min(keep, self._kept_from()))
-
-    def _kept_from(self) -> int:
-        """Subclasses that consume events across windows keep them from here (absolute index)."""
-        return 1 << 62
+        buf.drop_before(keep)
 
     def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
         raise NotImplementedError
@@ -389,9 +390,16 @@ class VoxelGrid(RepresentationFramer):
 @dataclass(eq=False)
 class TimeSurface(RepresentationFramer):
     """Time surface (OFF, ON) at each window's end: exp(−(t_end − t_last)/`tau_us`), t_last the newest
-    event at that pixel and polarity so far in the stream; 0 where none yet."""
+    event at that pixel and polarity so far in the stream; 0 where none yet.
+
+    It buffers no events: the newest time per pixel is brought up to each emitted window's end straight
+    from the chunk (the events before the end, or for fixed-count windows up to the window's last
+    counted event), then the rest of the chunk is applied. That is exact: a window emitted by a later
+    push ends after every event of this chunk (it would have closed on this chunk's watermark
+    otherwise), and an open fixed-count window holds every counted event after the emitted ones."""
 
     tau_us: float = 50_000.0
+    needs_events: ClassVar[bool] = False
 
     def __post_init__(self):
         tau = self.tau_us
@@ -406,22 +414,53 @@ class TimeSurface(RepresentationFramer):
     def _reset(self) -> None:
         super()._reset()
         self._last_t = None
-        self._applied = 0  # absolute index of the first buffered event not yet in _last_t
+        self._counted = 0  # counted events in the chunks before this one
+        self._emitted = 0  # fn: counted events in the windows emitted so far
 
     def _on_geometry(self) -> None:
         self._last_t = np.full(2 * self._hw, NEVER_US, np.int64)
 
-    def _kept_from(self) -> int:
-        return self._applied
+    def push(self, chunk: EventChunk) -> list[Representation]:
+        if len(chunk) or self.geometry is not None:
+            self._geometry(chunk)
+        return self._surfaces(self.inner.push(chunk), chunk)
 
-    def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
-        if b > self._applied:  # windows end in order: bring the surface up to this one's end
-            la, lb = self._local(self._applied, b)
-            last_time_kernel(self._buf.t, self._buf.f, la, lb, self._last_t)
-            self._applied = b
-        out = self._new_data(2)
-        if self._last_t is not None:
-            surface(self._last_t, fr.t_end, self.tau_us, out.reshape(-1))
+    def finish(self) -> list[Representation]:
+        out = self._surfaces(self.inner.finish(), None)  # every event is in _last_t already
+        self._reset()
+        return out
+
+    def _surfaces(self, frames: list[Frame], chunk: EventChunk | None) -> list[Representation]:
+        n = 0 if chunk is None else len(chunk)
+        cls, use_cls = self._cls(chunk) if n else (None, False)
+        where = None  # fn with classes: the chunk positions of its counted events
+        i = 0  # chunk events applied so far
+        out = []
+        for fr in frames:
+            if n:
+                if self.window == "fn":
+                    self._emitted += fr.n_events
+                    k = self._emitted - self._counted  # this chunk's counted events in or before the window
+                    if use_cls and k > 0:
+                        where = np.flatnonzero(cls == 0) if where is None else where
+                        j = int(where[k - 1]) + 1
+                    else:
+                        j = max(k, 0)
+                else:
+                    j = i + int(np.searchsorted(chunk.t[i:], fr.t_end, side="left"))
+                if j > i:
+                    last_time_of(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, j, self._width, self._hw,
+                                 self._last_t)
+                    i = j
+            data = self._new_data(2)
+            if self._last_t is not None:
+                surface(self._last_t, fr.t_end, self.tau_us, data.reshape(-1))
+            out.append(Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind, self.channels, data))
+        if n:
+            if i < n:
+                last_time_of(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, n, self._width, self._hw,
+                             self._last_t)
+            self._counted += n if not use_cls else int(np.count_nonzero(cls == 0))
         return out
 
 
