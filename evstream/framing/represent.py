@@ -255,8 +255,8 @@ class RepresentationFramer(FramerBase):
         if self.geometry is None:
             super()._reset()
             super()._geometry(chunk)
-            flat_dtype = np.uint32 if 2 * self._hw < 2**32 else np.int64
-            self._buf = _EventBuffer(flat_dtype)
+            if self.needs_events:
+                self._buf = _EventBuffer(np.uint32 if 2 * self._hw < 2**32 else np.int64)
             self._on_geometry()
 
     def _on_geometry(self) -> None:
