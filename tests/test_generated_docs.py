@@ -23,9 +23,10 @@ BLOCKS = [(path, command, body) for path in generated.DOCS
           for command, body, _ in generated.blocks(path.read_text(encoding="utf-8"))]
 
 
-def test_the_evaluation_doc_has_a_block_the_tests_always_check():
+def test_the_evaluation_doc_has_full_blocks_and_one_the_tests_always_check():
     commands = [c for p, c, _ in BLOCKS if p.name == "evaluation.md"]
     assert any("--real" not in c and generated.REAL not in c for c in commands)
+    assert any("--real" in c for c in commands) and any(generated.REAL + "/*" in c for c in commands)
 
 
 @pytest.mark.parametrize("path, command, body", BLOCKS, ids=[f"{p.name}: {c}" for p, c, _ in BLOCKS])
