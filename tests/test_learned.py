@@ -113,7 +113,7 @@ def test_bad_model_files_are_one_line_errors(tmp_path):
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"not a zip at all")
     for path, words in [(cut, "not a readable"), (other, "feature version 99"), (plain, "missing"),
-                        (junk, "not a readable"), (tmp_path / "none.npz", "no such model file")]:
+                        (junk, "not an .npz archive"), (tmp_path / "none.npz", "no such model file")]:
         with pytest.raises(ModelError) as e:
             load(path)
         msg = str(e.value)

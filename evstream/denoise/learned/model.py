@@ -108,6 +108,9 @@ def load(path=None) -> Model:
     version, is a `ModelError` naming the file and the reason."""
     path = Path(path) if path is not None else DEFAULT_MODEL
     try:
+        with open(path, "rb") as f:
+            if f.read(4) != b"PK\x03\x04":  # numpy would call anything else "pickled data"
+                raise ModelError(f"{path}: not an evstream model file (not an .npz archive)")
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in (*ARRAYS, "meta") if k not in z.files]
             if missing:
