@@ -87,6 +87,9 @@ class Member:
         info = self.info
         if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
             raise ValueError(f"zip compression method {info.compress_type} (numpy writes stored or deflated)")
+        if not 0 <= info.header_offset <= file_size - 30:
+            raise ValueError(f"its local zip header at byte {info.header_offset} lies outside the file "
+                             f"({file_size} bytes)")
         with builtins.open(self.path, "rb") as f:
             f.seek(info.header_offset)
             local = f.read(30)
