@@ -342,3 +342,22 @@ def test_frames_equal_compares_representation_data():
             assert_frames_equal([frame(a)], [frame(other)])
     with pytest.raises(AssertionError, match="frame 0 differs"):
         assert_frames_equal([frame(None)], [frame(a)])
+
+
+def test_other_future_keeps_the_prefix_and_replaces_the_rest():
+    """The causality checks' altered stream: same length and geometry, the first m events unchanged,
+    the rest drawn anew from the prefix's last time on (sometimes at that very time: a burst across
+    the cut)."""
+    from evstream.events import Geometry
+    from evstream.testing import _other_future
+
+    g = Geometry(40, 30)
+    at_cut = 0
+    for seed in range(60):
+        s = random_stream(seed, 200, g)
+        m, altered = _other_future(s, np.random.default_rng(seed))
+        assert 1 <= m < 200 and len(altered) == 200 and altered.geometry == g
+        assert np.array_equal(altered.t[:m], s.t[:m]) and np.array_equal(altered.x[:m], s.x[:m])
+        assert altered.t[m] >= s.t[m - 1] and not np.array_equal(altered.x[m:], s.x[m:])
+        at_cut += altered.t[m] == s.t[m - 1]
+    assert at_cut >= 6
