@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
-VIEWPORT = (1600, 1000)
+VIEWPORT = tuple(int(v) for v in os.environ.get("EVSTREAM_VIEWPORT", "1600x1000").split("x"))
 
 
 class BrowserError(RuntimeError):

@@ -15,11 +15,24 @@ One recording, timeline `event_time` (event-clock time since the first event). E
 - `stats/events/rate_hz`, `stats/noise_fraction/{background,hot_pixel}` per `stats_bin_us` of event
   time, `stats/frames/rate_hz`, `stats/frames/events_per_frame` per frame.
 
-The 3D view may subsample to `point_budget_hz` (points per second of event time, a token bucket), and
-counts what it drops in `points_dropped`; frames and statistics always use every event.
+The 3D view may subsample to `point_budget_hz` (points per second of event time, a token bucket) and
+to `wall_budget_hz` (points per second of wall-clock time: what a viewer must take in, whatever the
+replay speed), and counts what it drops in `points_dropped`; frames and statistics always use every event.
+
+What is logged is sent every `send_every_s` of wall-clock time as one column per entity (points, slab
+transform, statistics), not as calls per packet: a viewer's cost grows with the number of chunks it
+ingests, and a live stream of 5-ms packets made 7 chunks per packet. A `live` sink also drops, at each
+send, the points more than `late_s` of event time behind the newest one (a following view shows only
+the last slab: they are the backlog a viewer that fell behind would otherwise queue), counted in
+`points_late`.
+
+A restarted stream (`restart()`) keeps the layout and colour table and continues the timeline after the
+previous stream's last event (plus one slab), so the two are shown one after the other, never blended.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import rerun as rr
@@ -43,6 +56,10 @@ VIEW_BACKGROUND = (14, 15, 18)
 SLAB_COLOUR = (110, 110, 110)
 NOW_COLOUR = (235, 235, 235)
 STATS_BIN_US = 10_000
+# A live viewer (subscribe --serve/--spawn/--viewer): what it must take in stays bounded whatever the event
+# rate (benchmarks/bench_viewer_lag.py; docs/live.md): 100 k points per wall-clock second, sent four times a
+# second as one column per entity, rows of 10 ms of event time, and the points that fell 1 s behind dropped.
+LIVE_OPTIONS = {"live": True, "wall_budget_hz": 100_000.0, "send_every_s": 0.25, "time_bin_us": 10_000}
 
 
 def _us(t_us) -> np.ndarray:
@@ -129,6 +146,34 @@ class PointBudget:
         # saved-up tokens are capped; this chunk's own span of event time is not
         self.tokens = min(self.capacity, self.tokens) + self.rate_hz * (int(t[-1]) - t_prev) * 1e-6
         self.t_last = int(t[-1])
+        k = min(n, int(self.tokens))
+        self.tokens -= k
+        if k == n:
+            return None
+        self.dropped += n - k
+        return (np.arange(k, dtype=np.int64) * n) // k
+
+
+class WallBudget:
+    """Token bucket over wall-clock time: at most `rate_hz` points per second of wall-clock time (plus a
+    saved-up burst of `burst_s` worth), evenly spaced within a chunk; `dropped` counts what it left out."""
+
+    def __init__(self, rate_hz: float | None, burst_s: float = 0.2, clock=time.monotonic):
+        self.rate_hz = rate_hz
+        self.capacity = None if rate_hz is None else max(1.0, rate_hz * burst_s)
+        self.tokens = self.capacity
+        self.clock = clock
+        self.t_last: float | None = None
+        self.dropped = 0
+
+    def select(self, n: int) -> np.ndarray | None:
+        """Indices of the `n` points to draw, or None for all of them."""
+        if self.rate_hz is None or n == 0:
+            return None
+        now = self.clock()
+        if self.t_last is not None:
+            self.tokens = min(self.capacity, self.tokens + self.rate_hz * (now - self.t_last))
+        self.t_last = now
         k = min(n, int(self.tokens))
         self.tokens -= k
         if k == n:
@@ -224,17 +269,27 @@ class RerunSink:
     `time_bin_us`: event time per logged row of points (how smoothly the slab slides);
     `point_budget_hz`: most 3D points per second of event time (None: every event);
     `slab_ms`: depth of the visible time range; `framer`: name of the frame entity;
-    `play_state`: passed to the blueprint ("following" for live viewing).
+    `play_state`: passed to the blueprint ("following" for live viewing);
+    `wall_budget_hz`: most 3D points per second of wall-clock time (None: no bound);
+    `send_every_s`: wall-clock time between sends (0: each batch as it comes);
+    `live`: drop, at each send, points more than `late_s` (at least the slab) of event time behind the
+    newest one (see the module docstring).
     """
 
     def __init__(self, stream: rr.RecordingStream, *, geometry: Geometry | None = None,
                  slab_ms: float = 100.0, time_bin_us: int = 1000, point_budget_hz: float | None = 1e6,
                  framer: str | None = None, play_state: str | None = None,
-                 stats_bin_us: int = STATS_BIN_US, point_radius_ui: float = 1.5):
+                 stats_bin_us: int = STATS_BIN_US, point_radius_ui: float = 1.5,
+                 wall_budget_hz: float | None = None, send_every_s: float = 0.1, live: bool = False,
+                 late_s: float = 1.0):
         if slab_ms <= 0 or time_bin_us <= 0 or stats_bin_us <= 0:
             raise ValueError("slab_ms, time_bin_us and stats_bin_us must be positive")
         if point_budget_hz is not None and point_budget_hz <= 0:
             raise ValueError(f"point budget must be positive, got {point_budget_hz}")
+        if wall_budget_hz is not None and wall_budget_hz <= 0:
+            raise ValueError(f"wall-clock point budget must be positive, got {wall_budget_hz}")
+        if send_every_s < 0:
+            raise ValueError(f"send_every_s must be >= 0, got {send_every_s}")
         self.rec = stream
         self.slab_ms = slab_ms
         self.time_bin_us = int(time_bin_us)
@@ -243,19 +298,30 @@ class RerunSink:
         self.play_state = play_state
         self.point_radius_ui = point_radius_ui
         self.budget = PointBudget(point_budget_hz)
+        self.wall = WallBudget(wall_budget_hz)
+        self.send_every_s = float(send_every_s)
+        self.live = live
+        self.late_s = float(late_s)
         self.geometry: Geometry | None = None
         self.t0: int | None = None
         self.t_last: int | None = None
+        self.offset_us = 0  # timeline position of t0: a restarted stream continues after the previous one
         self.points_logged = 0
+        self.points_late = 0
         self.frames_logged = 0
+        self.restarts = 0
         self._stats: StatsBins | None = None
         self._last_frame_end: int | None = None
+        self._pending: list[tuple[np.ndarray, ...]] = []  # (t, x, y, cls) of points not sent yet
+        self._pending_stats: list[tuple[np.ndarray, np.ndarray]] = []
+        self._last_send = time.monotonic()
         if geometry is not None:
             self._start(geometry, None)
 
     @property
     def points_dropped(self) -> int:
-        return self.budget.dropped
+        """Points not drawn: over either budget, or too late for a live view."""
+        return self.budget.dropped + self.wall.dropped + self.points_late
 
     # -- setup ---------------------------------------------------------------------------------
     def _start(self, geometry: Geometry, t0: int | None) -> None:
@@ -311,40 +377,86 @@ class RerunSink:
                 self.t0 = int(ev.t[0])
                 self._stats = StatsBins(self.t0, self.stats_bin_us)
             self.t_last = int(ev.t[-1])
-            self._log_points(ev)
-            self._log_stats(*self._stats.push(ev.t, ev.classes(), ev.t_end))
+            self._keep_points(ev)
+            self._pending_stats.append(self._stats.push(ev.t, ev.classes(), ev.t_end))
         elif self._stats is not None and ev.t_end > (self.t_last or ev.t_end):
-            self._log_stats(*self._stats.push(ev.t, ev.classes(), ev.t_end))
+            self._pending_stats.append(self._stats.push(ev.t, ev.classes(), ev.t_end))
         self._log_frames(batch.frames)
+        if time.monotonic() - self._last_send >= self.send_every_s:
+            self.send()
 
     def close(self, stats: RunStats) -> None:
         if self._stats is not None and self.t_last is not None:
-            self._log_stats(*self._stats.flush(self.t_last))
+            self._pending_stats.append(self._stats.flush(self.t_last))
+            self._stats = None
+        self.send()
         self.rec.flush()
 
+    def restart(self) -> None:
+        """A new stream (its publisher restarted, its clock back to 0) after `close`: same recording, layout
+        and colours; its timeline continues one slab after the previous stream's last event."""
+        if self._stats is not None and self.t_last is not None:  # not closed: the open bin goes out first
+            self._pending_stats.append(self._stats.flush(self.t_last))
+        self.send()
+        if self.t0 is not None and self.t_last is not None:
+            self.offset_us += self.t_last - self.t0 + int(self.slab_ms * 1000)
+        self.t0 = self.t_last = None
+        self._stats = None
+        self._last_frame_end = None
+        self.budget = PointBudget(self.budget.rate_hz)
+        self.restarts += 1
+
+    def send(self) -> None:
+        """Log what waits: every entity's rows as one column each."""
+        self._last_send = time.monotonic()
+        if self._pending:
+            parts, self._pending = self._pending, []
+            t, x, y, cls = (np.concatenate([p[k] for p in parts]) for k in range(4))
+            if self.live:  # more than `late_s` behind the newest: a following view shows them no more
+                late = int(np.searchsorted(t, t[-1] - int(max(self.late_s, self.slab_ms / 1000) * 1e6), side="left"))
+                if late:
+                    self.points_late += late
+                    t, x, y, cls = t[late:], x[late:], y[late:], cls[late:]
+            self._log_points(t, x, y, cls)
+        if self._pending_stats:
+            parts, self._pending_stats = self._pending_stats, []
+            self._log_stats(np.concatenate([e for e, _ in parts]), np.concatenate([c for _, c in parts]))
+
     # -- logging ---------------------------------------------------------------------------------
-    def _log_points(self, ev: EventChunk) -> None:
+    def _rel(self, t) -> np.ndarray:
+        """Timeline position (µs) of event times `t`."""
+        return np.asarray(t, np.int64) - self.t0 + self.offset_us
+
+    def _keep_points(self, ev: EventChunk) -> None:
+        """The chunk's points within both budgets, waiting for the next send."""
         keep = self.budget.select(ev.t)
+        t, x, y, cls = ev.t, ev.x, ev.y, ev.classes()
         if keep is not None:
-            ev = ev[keep]
-        if not len(ev):
+            t, x, y, cls = t[keep], x[keep], y[keep], cls[keep]
+        keep = self.wall.select(len(t))
+        if keep is not None:
+            t, x, y, cls = t[keep], x[keep], y[keep], cls[keep]
+        if len(t):
+            self._pending.append((t, x, y, cls))
+
+    def _log_points(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, cls: np.ndarray) -> None:
+        if not len(t):
             return
-        rel = ev.t - self.t0
+        rel = self._rel(t)
         bins = rel // self.time_bin_us
         # Slab transform: one row per bin, newest events at depth 0.
         change = np.flatnonzero(np.diff(bins)) + 1
-        ends_idx = np.append(change, len(ev)) - 1
+        ends_idx = np.append(change, len(t)) - 1
         row_t = rel[ends_idx]
         self.rec.send_columns(
             "events", indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))],
             columns=rr.Transform3D.columns(translation=np.column_stack(
                 (np.zeros(len(row_t)), np.zeros(len(row_t)), row_t * self.scale)).astype(np.float32)),
         )
-        pos = np.empty((len(ev), 3), np.float32)
-        pos[:, 0] = ev.x
-        pos[:, 1] = ev.y
+        pos = np.empty((len(t), 3), np.float32)
+        pos[:, 0] = x
+        pos[:, 1] = y
         pos[:, 2] = rel * -self.scale
-        cls = ev.classes()
         for c, entity in CLASS_ENTITIES.items():
             sel = np.flatnonzero(cls == c)
             if not len(sel):
@@ -357,7 +469,7 @@ class RerunSink:
                 entity, indexes=[rr.TimeColumn(TIMELINE, duration=_us(rel[sel][last]))],
                 columns=rr.Points3D.columns(positions=pos[sel]).partition(lengths),
             )
-        self.points_logged += len(ev)
+        self.points_logged += len(t)
 
     def _log_stats(self, ends_us: np.ndarray, counts: np.ndarray) -> None:
         if not len(ends_us):
@@ -365,12 +477,12 @@ class RerunSink:
         starts = self.t0 + (ends_us - 1 - self.t0) // self.stats_bin_us * self.stats_bin_us  # bin starts
         span_s = np.maximum(ends_us - starts, 1) * 1e-6
         total = counts.sum(axis=1)
-        times = [rr.TimeColumn(TIMELINE, duration=_us(ends_us - self.t0))]
+        times = [rr.TimeColumn(TIMELINE, duration=_us(self._rel(ends_us)))]
         self.rec.send_columns("stats/events/rate_hz", indexes=times,
                               columns=rr.Scalars.columns(scalars=total / span_s))
         some = total > 0
         if some.any():
-            t_some = [rr.TimeColumn(TIMELINE, duration=_us(ends_us[some] - self.t0))]
+            t_some = [rr.TimeColumn(TIMELINE, duration=_us(self._rel(ends_us[some])))]
             for c in (NoiseClass.BACKGROUND, NoiseClass.HOT_PIXEL):
                 self.rec.send_columns(f"stats/noise_fraction/{c.name.lower()}", indexes=t_some,
                                       columns=rr.Scalars.columns(scalars=counts[some, c] / total[some]))
@@ -379,7 +491,7 @@ class RerunSink:
         for frame in frames:
             if self.t0 is None:
                 self.t0 = frame.t_start
-            self.rec.set_time(TIMELINE, duration=np.timedelta64(int(frame.t_end - self.t0), "us"))
+            self.rec.set_time(TIMELINE, duration=np.timedelta64(int(self._rel(frame.t_end)), "us"))
             self.rec.log(f"frames/{self.framer or 'frames'}", rr.Image(render_frame(frame.image)))
             if getattr(frame, "data", None) is not None:  # a representation (time surface, voxel grid, ...)
                 self.rec.log(f"representations/{frame.kind}", rr.Image(render_representation(frame)))

@@ -137,6 +137,9 @@ def cmd_subscribe(args) -> int:
                      published_events=cam.published_events, published_packets=cam.published_packets,
                      published_unmatched_packets=cam.published_unmatched_packets,
                      archives=cam.archives)
+            if cam.viewer_sink is not None:
+                d.update(points_drawn=cam.viewer_sink.points_logged, points_dropped=cam.viewer_sink.points_dropped,
+                         points_late=cam.viewer_sink.points_late)
         cams[name] = d
     summary = {"keyexpr": args.keyexpr, "flow": flow, "cameras": cams, **totals, "wall_s": wall,
                "events_per_s": totals["events"] / wall if wall > 0 else 0.0, "stopped_by": stop_reason}

@@ -43,6 +43,8 @@ class Camera:
         self.published_packets = 0
         self.published_unmatched_packets = 0  # republished while nobody read the cleaned stream
         self.archives: list[str] = []
+        self.viewer_sink = None  # kept across restarts: one layout and colour table, the timeline continued
+        self.said_late = False
         self.open(geometry)
 
     def open(self, geometry) -> None:
@@ -63,13 +65,18 @@ class Camera:
                                        frames=self.pipeline.framer is not None, metadata=meta, geometry=geometry,
                                        flush_s=args.flush_s))
             self.archives.append(path)
-        if node.viewer is not None:
-            from evstream.sinks.rerun_sink import RerunSink
+        if node.viewer is not None and self.viewer_sink is not None:
+            self.viewer_sink.restart()
+            self.sinks.append(self.viewer_sink)
+        elif node.viewer is not None:
+            from evstream.sinks.rerun_sink import LIVE_OPTIONS, RerunSink
 
-            self.sinks.append(RerunSink(node.viewer_rec(self.name), geometry=geometry,
-                                        framer=getattr(self.pipeline.framer, "kind", None),
-                                        point_budget_hz=args.point_budget or None, slab_ms=args.slab_ms,
-                                        play_state=None if node.viewer.mode == "save" else "following"))
+            live = LIVE_OPTIONS if node.viewer.mode != "save" else {}  # a file keeps every point
+            self.viewer_sink = RerunSink(node.viewer_rec(self.name), geometry=geometry,
+                                         framer=getattr(self.pipeline.framer, "kind", None),
+                                         point_budget_hz=args.point_budget or None, slab_ms=args.slab_ms,
+                                         play_state=None if node.viewer.mode == "save" else "following", **live)
+            self.sinks.append(self.viewer_sink)
         if args.republish:
             from evstream.sinks.zenoh_pub import ZenohSink, frames_key_for
 
@@ -81,6 +88,11 @@ class Camera:
         batch = self.pipeline.process(packet.chunk)
         for sink in self.sinks:
             sink.write(batch)
+        if self.viewer_sink is not None and self.viewer_sink.points_late and not self.said_late:
+            self.said_late = True
+            print(f"evstream: {self.name}: the viewer fell behind: points more than {self.viewer_sink.late_s:g} s "
+                  "behind the newest are dropped, not queued (frames and statistics stay complete)",
+                  file=sys.stderr, flush=True)
         if self.pub is not None:
             self.pub.write(batch, source_time_ns=packet.source_time_ns)
 
@@ -223,6 +235,10 @@ def print_summary(s: dict) -> None:
             if "latency_warm_p99_ms" in c:
                 line += f" (after the first second: p99 {c['latency_warm_p99_ms']:.1f} ms)"
         print(line)
+        if "points_drawn" in c:
+            print(f"    viewer: {c['points_drawn']:,} points drawn, {c['points_dropped']:,} dropped "
+                  f"({c['points_late']:,} of them because the viewer fell behind; the rest by the point budgets); "
+                  "frames and statistics use every event")
         if c.get("published_packets"):
             print(f"    republished {c['published_events']:,} events in {c['published_packets']:,} packets"
                   + (f"; {c['published_unmatched_packets']:,} of them while no subscriber matched: nobody "

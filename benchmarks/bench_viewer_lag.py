@@ -1,0 +1,278 @@
+"""How far the live web viewer lags behind the stream: a synthetic live stream (346x260, random events in
+the three classes, 10-ms chunks released at real time) at 0.1, 1 and 5 M events/s offered goes through
+the Rerun sink into `--serve` (the `rerun --serve-web` process on 127.0.0.1), and the web viewer runs in
+headless Chromium (software WebGL, SwiftShader), as a user of `evstream subscribe ... --serve` sees it.
+
+The lag is the viewer's time cursor against the stream's clock, every second: the page's viewer handle
+(`window._handle.viewer_state()`, the ViewerState protobuf that `rerun.experimental.ViewerClient.get_state`
+reads from a native viewer) gives the cursor on the `event_time` timeline, which follows the newest data
+the viewer has taken in; lag = now - the wall-clock time at which that event time was live. Also per
+second: frames the page drew (requestAnimationFrame), and CPU of this process (the SDK's logging), of the
+serve process and of Chromium's processes.
+
+    .venv/bin/python -m benchmarks.bench_viewer_lag [--seconds 60] [--rates 0.1,1,5] [--modes before,after]
+
+`before` is the sink as it was (a call per entity per packet, no wall-clock budget, nothing dropped),
+`after` the defaults of `evstream subscribe --serve`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from evstream.sinks.rerun_sink import LIVE_OPTIONS, TIMELINE, RerunSink
+from evstream.sinks.rerun_viewer import free_port, open_output
+
+from evstream.chromium import CHROMIUM, HeadlessChromium
+from evstream.events import EventChunk, Geometry
+from evstream.pipeline import Batch, RunStats
+
+G = Geometry(346, 260)
+FRAME_COUNTER = "window.__frames = 0; (function f() { window.__frames++; requestAnimationFrame(f); })()"
+STATE = "window.__frames + ' ' + btoa(String.fromCharCode(...window._handle.viewer_state()))"
+CHUNK_US = 10_000
+TAIL_S = float(os.environ.get("EVSTREAM_LAG_TAIL_S", "5"))
+MODES = {
+    "before": dict(send_every_s=0.0, wall_budget_hz=None, live=False),
+    "after": dict(LIVE_OPTIONS),  # what `subscribe --serve` uses
+}
+
+
+def _varint(b: bytes, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        c = b[i]
+        i += 1
+        value |= (c & 0x7F) << shift
+        shift += 7
+        if c < 0x80:
+            return value, i
+
+
+def _fields(b: bytes) -> list[tuple[int, int, object]]:
+    """(field number, wire type, value) of one protobuf message (no schema: what the wire says)."""
+    out, i = [], 0
+    while i < len(b):
+        key, i = _varint(b, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _varint(b, i)
+        elif wire == 2:
+            n, i = _varint(b, i)
+            value, i = b[i:i + n], i + n
+        elif wire in (1, 5):
+            size = 8 if wire == 1 else 4
+            value, i = b[i:i + size], i + size
+        else:
+            raise ValueError(f"protobuf wire type {wire}")
+        out.append((number, wire, value))
+    return out
+
+
+def _name(msg: bytes) -> bytes | None:
+    return dict((n, v) for n, _, v in _fields(msg)).get(1)
+
+
+def _time(wire: int, value) -> int:
+    """A time field: a varint, or a message whose field 1 is one (absent = 0)."""
+    if wire == 0:
+        return int(value)
+    return int(dict((n, v) for n, _, v in _fields(value)).get(1, 0))
+
+
+def viewer_times(state: bytes, timeline: str = TIMELINE) -> tuple[int | None, int | None]:
+    """(time cursor, newest time ingested) on `timeline`, ns, from a ViewerState protobuf: its
+    recordings (field 3) hold timelines (field 2: {1: {1: name}, 2: type, 3: {1: start, 2: end}}) and
+    the current timeline and time (field 3: {1: {1: name}, 2: type, 3: time})."""
+    want = timeline.encode()
+    cursor = newest = None
+    for number, wire, rec in _fields(state):
+        if number != 3 or wire != 2:
+            continue
+        for n2, w2, sub in _fields(rec):
+            if w2 != 2 or n2 not in (2, 3):
+                continue
+            parts = {n: (w, v) for n, w, v in _fields(sub)}
+            if 1 not in parts or _name(parts[1][1]) != want:
+                continue
+            if n2 == 3:
+                cursor = _time(*parts.get(3, (0, 0)))
+            elif 3 in parts:
+                span = {n: (w, v) for n, w, v in _fields(parts[3][1])}
+                newest = _time(*span.get(2, (0, 0)))
+    return cursor, newest
+
+
+def cpu_s(pids: list[int]) -> float:
+    """User + system CPU seconds of processes so far (their threads included)."""
+    total = 0
+    for pid in pids:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            total += int(fields[11]) + int(fields[12])
+        except (OSError, IndexError):
+            pass
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def group_pids(pgid: int) -> list[int]:
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[2]) == pgid:
+                    out.append(int(d.name))
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
+def stream(rate_hz: float, seconds: float, seed: int = 0):
+    """10-ms chunks of random events (70 % signal, 25 % background, 5 % hot pixels) at `rate_hz`."""
+    rng = np.random.default_rng(seed)
+    n = max(1, int(rate_hz * CHUNK_US * 1e-6))
+    pool = 16
+    xs = rng.integers(0, G.width, (pool, n)).astype(np.uint16)
+    ys = rng.integers(0, G.height, (pool, n)).astype(np.uint16)
+    ps = rng.integers(0, 2, (pool, n)).astype(np.int8)
+    cs = rng.choice(3, (pool, n), p=[0.7, 0.25, 0.05]).astype(np.uint8)
+    offs = np.sort(rng.integers(0, CHUNK_US, (pool, n)), axis=1)
+    for i in range(int(seconds * 1e6 / CHUNK_US)):
+        k = i % pool
+        t = offs[k] + i * CHUNK_US
+        yield EventChunk(t=t, x=xs[k], y=ys[k], p=ps[k], geometry=G, cls=cs[k], t_end=(i + 1) * CHUNK_US)
+
+
+def run_one(mode: str, rate_hz: float, seconds: float, workdir: Path) -> dict:
+    out = open_output(serve=True, memory_limit="1GiB", log_dir=workdir, grpc_port=free_port(), web_port=free_port())
+    rec = out.rec
+    name, *knobs = mode.split(":")  # e.g. after:50000:10000 = a wall-clock budget and a time bin
+    options = dict(MODES[name])
+    if knobs and knobs[0]:
+        options["wall_budget_hz"] = float(knobs[0])
+    if len(knobs) > 1:
+        options["time_bin_us"] = int(knobs[1])
+    if len(knobs) > 2:
+        options["send_every_s"] = float(knobs[2])
+    if len(knobs) > 3:
+        options["stats_bin_us"] = int(knobs[3])
+    sink = RerunSink(rec, geometry=G, play_state="following", **options)
+    browser = HeadlessChromium(workdir / f"profile-{mode}-{rate_hz:g}", workdir / "chromium.log")
+    samples: list[dict] = []
+    started = {"t": time.time()}
+    t0_wall = {"t": time.time()}
+    stop = threading.Event()
+    try:
+        session = browser.open(out.web_url, 120)
+        time.sleep(15)  # the wasm viewer loads and compiles (slow under software rendering and load)
+        chromium_pids = group_pids(browser.process.pid)
+        serve_pid = out.process.pid
+
+        browser.call("Runtime.evaluate", {"expression": FRAME_COUNTER}, session)
+
+        def sample():
+            last = (time.monotonic(), cpu_s([os.getpid()]), cpu_s([serve_pid]), cpu_s(chromium_pids), 0)
+            while not stop.is_set():
+                t_req = time.time()
+                try:
+                    reply = browser.call("Runtime.evaluate", {"expression": STATE, "returnByValue": True},
+                                         session, timeout_s=30)["result"]["value"]
+                    frames, state = reply.split(" ", 1)
+                    cursor, newest = viewer_times(base64.b64decode(state))
+                    frames = int(frames)
+                except Exception:  # noqa: BLE001 - a missed sample is recorded as such
+                    cursor, newest, frames = None, None, last[4]
+                t_got = time.time()
+                now = (time.monotonic(), cpu_s([os.getpid()]), cpu_s([serve_pid]), cpu_s(chromium_pids), frames)
+                dt = max(now[0] - last[0], 1e-6)
+                def wall(ns):  # when that event time was live
+                    return None if ns is None or sink.t0 is None else t0_wall["t"] + (sink.t0 + ns / 1000) * 1e-6
+
+                samples.append({
+                    "t_s": t_got - started["t"],
+                    "lag_s": None if wall(cursor) is None else t_got - wall(cursor),
+                    "ingest_lag_s": None if wall(newest) is None else t_got - wall(newest),
+                    "query_s": t_got - t_req, "fps": (now[4] - last[4]) / dt,
+                    "cpu_sdk": (now[1] - last[1]) / dt, "cpu_serve": (now[2] - last[2]) / dt,
+                    "cpu_chromium": (now[3] - last[3]) / dt,
+                })
+                last = now
+                stop.wait(max(0.0, 1.0 - (time.time() - t_req)))
+
+        started["t"] = time.time()
+        sampler = threading.Thread(target=sample, daemon=True)
+        sampler.start()
+        t0_wall["t"] = time.time()
+        stats = RunStats()
+        behind_s = 0.0
+        for chunk in stream(rate_hz, seconds):
+            due = t0_wall["t"] + chunk.t_end * 1e-6
+            behind_s = max(behind_s, time.time() - due)
+            if time.time() > t0_wall["t"] + 2 * seconds + 30:  # the logging itself cannot keep up: stop
+                print(f"  {mode} {rate_hz / 1e6:g} M ev/s: logging stalled, {behind_s:.0f} s behind; stopped",
+                      flush=True)
+                break
+            delay = due - time.time()
+            if delay > 0:
+                time.sleep(delay)
+            sink.write(Batch(chunk, [], stats))
+        sink.close(stats)
+        time.sleep(TAIL_S)  # how the lag ends
+        stop.set()
+        sampler.join(timeout=60)
+    finally:
+        stop.set()
+        browser.close()
+        out.finish()
+        out.stop()
+    lags = [s["lag_s"] for s in samples if s["lag_s"] is not None and 10 < s["t_s"] < seconds]
+    return {"mode": mode, "rate_Mev_s": rate_hz / 1e6, "seconds": seconds, "samples": samples,
+            "lag_median_s": float(np.median(lags)) if lags else None,
+            "lag_p90_s": float(np.percentile(lags, 90)) if lags else None,
+            "lag_max_s": float(max(lags)) if lags else None,
+            "points_logged": sink.points_logged, "points_dropped": sink.points_dropped,
+            "points_late": sink.points_late, "sdk_behind_max_s": behind_s}
+
+
+def run(seconds: float = 60.0, rates=(0.1e6, 1e6, 5e6), modes=("before", "after"), json_out: str | None = None):
+    if CHROMIUM is None:
+        print("bench_viewer_lag: skipped, no Chromium (apt-get install chromium)")
+        return
+    results = []
+    with tempfile.TemporaryDirectory() as d:
+        for rate in rates:
+            for mode in modes:  # interleaved: before and after under the same load
+                r = run_one(mode, rate, seconds, Path(d))
+                results.append(r)
+                curve = " ".join("-" if s["lag_s"] is None else f"{s['lag_s']:.1f}" for s in r["samples"])
+                cpu = {k: np.mean([s[k] for s in r["samples"]]) for k in ("cpu_sdk", "cpu_serve", "cpu_chromium")}
+                print(f"{mode:6s} {rate / 1e6:g} M ev/s: lag after 10 s median "
+                      f"{r['lag_median_s'] if r['lag_median_s'] is None else round(r['lag_median_s'], 2)} s, "
+                      f"p90 {r['lag_p90_s'] if r['lag_p90_s'] is None else round(r['lag_p90_s'], 2)} s, "
+                      f"max {r['lag_max_s'] if r['lag_max_s'] is None else round(r['lag_max_s'], 2)} s; "
+                      f"points drawn {r['points_logged']:,} dropped {r['points_dropped']:,}; CPU cores "
+                      f"sdk {cpu['cpu_sdk']:.2f} serve {cpu['cpu_serve']:.2f} chromium {cpu['cpu_chromium']:.2f}; "
+                      f"fps {np.mean([s['fps'] for s in r['samples']]):.1f}; logging behind the stream by up to "
+                      f"{r['sdk_behind_max_s']:.1f} s",
+                      flush=True)
+                print(f"  lag per second (s): {curve}", flush=True)
+    if json_out:
+        Path(json_out).write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--rates", default="0.1,1,5", help="M events/s offered, comma-separated")
+    ap.add_argument("--modes", default="before,after")
+    ap.add_argument("--json", help="write every sample here")
+    a = ap.parse_args()
+    run(a.seconds, [float(r) * 1e6 for r in a.rates.split(",")], a.modes.split(","), a.json)
