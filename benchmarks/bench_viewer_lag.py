@@ -11,6 +11,11 @@ second: frames the page drew (requestAnimationFrame), and CPU of this process (t
 serve process and of Chromium's processes.
 
     .venv/bin/python -m benchmarks.bench_viewer_lag [--seconds 60] [--rates 0.1,1,5] [--modes before,after]
+        [--viewers web,native]
+
+`native`: the same streams into the native viewer (`--spawn`'s), headless on the CPU (llvmpipe), its
+state read through `rerun.experimental.ViewerClient.get_state` every second (lag = now - the wall-clock
+time of the newest event time it has taken in). Its binary is found on PATH (`.venv/bin`).
 
 `before` is the sink as it was (a call per entity per packet, no wall-clock budget, nothing dropped),
 `after` the defaults of `evstream subscribe --serve`.
@@ -28,10 +33,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import rerun as rr
 from evstream.sinks.rerun_sink import LIVE_OPTIONS, TIMELINE, RerunSink
 from evstream.sinks.rerun_viewer import free_port, open_output
 
-from evstream.chromium import CHROMIUM, HeadlessChromium
+from evstream.chromium import CHROMIUM, HeadlessChromium, viewer_times
 from evstream.events import EventChunk, Geometry
 from evstream.pipeline import Batch, RunStats
 
@@ -44,71 +50,6 @@ MODES = {
     "before": dict(send_every_s=0.0, wall_budget_hz=None, live=False),
     "after": dict(LIVE_OPTIONS),  # what `subscribe --serve` uses
 }
-
-
-def _varint(b: bytes, i: int) -> tuple[int, int]:
-    value = shift = 0
-    while True:
-        c = b[i]
-        i += 1
-        value |= (c & 0x7F) << shift
-        shift += 7
-        if c < 0x80:
-            return value, i
-
-
-def _fields(b: bytes) -> list[tuple[int, int, object]]:
-    """(field number, wire type, value) of one protobuf message (no schema: what the wire says)."""
-    out, i = [], 0
-    while i < len(b):
-        key, i = _varint(b, i)
-        number, wire = key >> 3, key & 7
-        if wire == 0:
-            value, i = _varint(b, i)
-        elif wire == 2:
-            n, i = _varint(b, i)
-            value, i = b[i:i + n], i + n
-        elif wire in (1, 5):
-            size = 8 if wire == 1 else 4
-            value, i = b[i:i + size], i + size
-        else:
-            raise ValueError(f"protobuf wire type {wire}")
-        out.append((number, wire, value))
-    return out
-
-
-def _name(msg: bytes) -> bytes | None:
-    return dict((n, v) for n, _, v in _fields(msg)).get(1)
-
-
-def _time(wire: int, value) -> int:
-    """A time field: a varint, or a message whose field 1 is one (absent = 0)."""
-    if wire == 0:
-        return int(value)
-    return int(dict((n, v) for n, _, v in _fields(value)).get(1, 0))
-
-
-def viewer_times(state: bytes, timeline: str = TIMELINE) -> tuple[int | None, int | None]:
-    """(time cursor, newest time ingested) on `timeline`, ns, from a ViewerState protobuf: its
-    recordings (field 3) hold timelines (field 2: {1: {1: name}, 2: type, 3: {1: start, 2: end}}) and
-    the current timeline and time (field 3: {1: {1: name}, 2: type, 3: time})."""
-    want = timeline.encode()
-    cursor = newest = None
-    for number, wire, rec in _fields(state):
-        if number != 3 or wire != 2:
-            continue
-        for n2, w2, sub in _fields(rec):
-            if w2 != 2 or n2 not in (2, 3):
-                continue
-            parts = {n: (w, v) for n, w, v in _fields(sub)}
-            if 1 not in parts or _name(parts[1][1]) != want:
-                continue
-            if n2 == 3:
-                cursor = _time(*parts.get(3, (0, 0)))
-            elif 3 in parts:
-                span = {n: (w, v) for n, w, v in _fields(parts[3][1])}
-                newest = _time(*span.get(2, (0, 0)))
-    return cursor, newest
 
 
 def cpu_s(pids: list[int]) -> float:
@@ -242,13 +183,51 @@ def run_one(mode: str, rate_hz: float, seconds: float, workdir: Path) -> dict:
             "points_late": sink.points_late, "sdk_behind_max_s": behind_s}
 
 
-def run(seconds: float = 60.0, rates=(0.1e6, 1e6, 5e6), modes=("before", "after"), json_out: str | None = None):
-    if CHROMIUM is None:
-        print("bench_viewer_lag: skipped, no Chromium (apt-get install chromium)")
-        return
+def run_native(mode: str, rate_hz: float, seconds: float) -> dict:
+    """The same stream into the native viewer (what `--spawn` opens), headless on the CPU (llvmpipe), its
+    state read every second through `rerun.experimental.ViewerClient.get_state`."""
+    from rerun.experimental import ViewerClient
+
+    port = free_port()
+    client = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True)
+    samples = []
+    try:
+        rec = rr.RecordingStream("evstream")
+        rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy")
+        sink = RerunSink(rec, geometry=G, play_state="following", **MODES[mode])
+        t0_wall = time.time()
+        last = 0.0
+        for chunk in stream(rate_hz, seconds):
+            delay = t0_wall + chunk.t_end * 1e-6 - time.time()
+            if delay > 0:
+                time.sleep(delay)
+            sink.write(Batch(chunk, [], RunStats()))
+            if time.time() - last >= 1.0:
+                last = time.time()
+                state = client.get_state()
+                recs = [r for r in state.recordings if any(t.name == TIMELINE for t in r.timelines)]
+                if recs and sink.t0 is not None:
+                    end = next(t.end for t in recs[0].timelines if t.name == TIMELINE)
+                    samples.append({"t_s": last - t0_wall, "lag_s": last - (t0_wall + (sink.t0 + end / 1000) * 1e-6)})
+            if time.time() > t0_wall + 2 * seconds + 30:
+                break
+        sink.close(RunStats())
+        rec.disconnect()
+    finally:
+        client.quit()
+    lags = [x["lag_s"] for x in samples if 10 < x["t_s"] < seconds]
+    return {"mode": mode, "viewer": "native", "rate_Mev_s": rate_hz / 1e6, "seconds": seconds, "samples": samples,
+            "lag_median_s": float(np.median(lags)) if lags else None,
+            "lag_max_s": float(max(lags)) if lags else None, "points_logged": sink.points_logged}
+
+
+def run(seconds: float = 60.0, rates=(0.1e6, 1e6, 5e6), modes=("before", "after"), json_out: str | None = None,
+        web: bool = True, native: bool = True):
     results = []
+    if web and CHROMIUM is None:
+        print("bench_viewer_lag: web viewer skipped, no Chromium (apt-get install chromium)")
     with tempfile.TemporaryDirectory() as d:
-        for rate in rates:
+        for rate in rates if web and CHROMIUM else ():
             for mode in modes:  # interleaved: before and after under the same load
                 r = run_one(mode, rate, seconds, Path(d))
                 results.append(r)
@@ -264,6 +243,13 @@ def run(seconds: float = 60.0, rates=(0.1e6, 1e6, 5e6), modes=("before", "after"
                       f"{r['sdk_behind_max_s']:.1f} s",
                       flush=True)
                 print(f"  lag per second (s): {curve}", flush=True)
+    for rate in rates if native else ():
+        for mode in modes:
+            r = run_native(mode, rate, seconds)
+            results.append(r)
+            print(f"native {mode:6s} {rate / 1e6:g} M ev/s: lag after 10 s median {r['lag_median_s']}, max "
+                  f"{r['lag_max_s']}; points drawn {r['points_logged']:,}", flush=True)
+            print("  lag per second (s): " + " ".join(f"{x['lag_s']:.2f}" for x in r["samples"]), flush=True)
     if json_out:
         Path(json_out).write_text(json.dumps(results, indent=1))
 
@@ -274,5 +260,7 @@ if __name__ == "__main__":
     ap.add_argument("--rates", default="0.1,1,5", help="M events/s offered, comma-separated")
     ap.add_argument("--modes", default="before,after")
     ap.add_argument("--json", help="write every sample here")
+    ap.add_argument("--viewers", default="web,native", help="web (headless Chromium), native (headless)")
     a = ap.parse_args()
-    run(a.seconds, [float(r) * 1e6 for r in a.rates.split(",")], a.modes.split(","), a.json)
+    run(a.seconds, [float(r) * 1e6 for r in a.rates.split(",")], a.modes.split(","), a.json,
+        web="web" in a.viewers, native="native" in a.viewers)

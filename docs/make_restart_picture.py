@@ -13,6 +13,7 @@ Needs Chromium (Debian: chromium).
 from __future__ import annotations
 
 import argparse
+import signal
 import subprocess
 import sys
 import tempfile
@@ -27,7 +28,7 @@ def main() -> int:
     from evstream.sinks.colours import CLASS_COLOURS
     from evstream.sinks.rerun_viewer import free_port
 
-    from evstream.chromium import CHROMIUM, HeadlessChromium, colour_counts
+    from evstream.chromium import CHROMIUM, HeadlessChromium, colour_counts, page_viewer_times
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "docs" / "live-restart.png"))
@@ -62,6 +63,12 @@ def main() -> int:
             png = d / "shot.png"
             colours = {c.name: rgb for c, rgb in CLASS_COLOURS.items()}
             deadline = time.monotonic() + args.timeout_s
+            second_ns = 600_000_000  # the second stream: after the first (0.5 s) and one slab (0.1 s)
+            while (page_viewer_times(browser, session)[0] or 0) < second_ns + 300_000_000:
+                if time.monotonic() > deadline:
+                    print("the viewer did not reach the second stream in time", file=sys.stderr)
+                    return 1
+                time.sleep(2.0)
             while min(colour_counts(browser.screenshot(session, png), colours, VIEW_3D).values()) < 100:
                 if time.monotonic() > deadline:
                     print("the 3D view did not show the three classes in time", file=sys.stderr)
@@ -73,9 +80,17 @@ def main() -> int:
         finally:
             if browser is not None:
                 browser.close()
-            for p in reversed(procs):
-                p.terminate()
-                p.wait(timeout=20)
+            for p in reversed(procs):  # Ctrl-C stops a subscriber's stream, a second one its server
+                for _ in range(3):
+                    p.send_signal(signal.SIGINT)
+                    try:
+                        p.wait(timeout=10)
+                        break
+                    except subprocess.TimeoutExpired:
+                        continue
+                else:
+                    p.kill()
+                    p.wait()
 
 
 if __name__ == "__main__":

@@ -172,3 +172,79 @@ def colour_counts(png: Path, colours: dict, box: tuple[float, float, float, floa
     left, top, right, bottom = box
     view = img[int(top * h): int(bottom * h), int(left * w): int(right * w)]
     return {name: int((np.abs(view - np.array(rgb)).max(axis=2) <= tol).sum()) for name, rgb in colours.items()}
+
+
+# -- the web viewer's state: the ViewerState protobuf of `window._handle.viewer_state()` -------------------
+def _varint(b: bytes, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        c = b[i]
+        i += 1
+        value |= (c & 0x7F) << shift
+        shift += 7
+        if c < 0x80:
+            return value, i
+
+
+def _fields(b: bytes) -> list[tuple[int, int, object]]:
+    """(field number, wire type, value) of one protobuf message (no schema: what the wire says)."""
+    out, i = [], 0
+    while i < len(b):
+        key, i = _varint(b, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _varint(b, i)
+        elif wire == 2:
+            n, i = _varint(b, i)
+            value, i = b[i:i + n], i + n
+        elif wire in (1, 5):
+            size = 8 if wire == 1 else 4
+            value, i = b[i:i + size], i + size
+        else:
+            raise ValueError(f"protobuf wire type {wire}")
+        out.append((number, wire, value))
+    return out
+
+
+def _name(msg: bytes) -> bytes | None:
+    return dict((n, v) for n, _, v in _fields(msg)).get(1)
+
+
+def _time(wire: int, value) -> int:
+    """A time field: a varint, or a message whose field 1 is one (absent = 0)."""
+    if wire == 0:
+        return int(value)
+    return int(dict((n, v) for n, _, v in _fields(value)).get(1, 0))
+
+
+def viewer_times(state: bytes, timeline: str = "event_time") -> tuple[int | None, int | None]:
+    """(time cursor, newest time ingested) on `timeline`, ns, from a ViewerState protobuf: its
+    recordings (field 3) hold timelines (field 2: {1: {1: name}, 2: type, 3: {1: start, 2: end}}) and
+    the current timeline and time (field 3: {1: {1: name}, 2: type, 3: time})."""
+    want = timeline.encode()
+    cursor = newest = None
+    for number, wire, rec in _fields(state):
+        if number != 3 or wire != 2:
+            continue
+        for n2, w2, sub in _fields(rec):
+            if w2 != 2 or n2 not in (2, 3):
+                continue
+            parts = {n: (w, v) for n, w, v in _fields(sub)}
+            if 1 not in parts or _name(parts[1][1]) != want:
+                continue
+            if n2 == 3:
+                cursor = _time(*parts.get(3, (0, 0)))
+            elif 3 in parts:
+                span = {n: (w, v) for n, w, v in _fields(parts[3][1])}
+                newest = _time(*span.get(2, (0, 0)))
+    return cursor, newest
+
+
+VIEWER_STATE_JS = "btoa(String.fromCharCode(...window._handle.viewer_state()))"
+
+
+def page_viewer_times(browser: HeadlessChromium, session: str, timeline: str = "event_time"
+                      ) -> tuple[int | None, int | None]:
+    """(time cursor, newest time ingested) on `timeline`, ns, of the Rerun web viewer in a tab."""
+    reply = browser.call("Runtime.evaluate", {"expression": VIEWER_STATE_JS, "returnByValue": True}, session)
+    return viewer_times(base64.b64decode(reply["result"]["value"]), timeline)
