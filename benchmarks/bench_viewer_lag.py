@@ -17,6 +17,7 @@ serve process and of Chromium's processes.
 state read through `rerun.experimental.ViewerClient.get_state` every second (lag = now - the wall-clock
 time of the newest event time it has taken in). Its binary is found on PATH (`.venv/bin`).
 
+The page size is EVSTREAM_VIEWPORT (default 1600x1000; docs/live.md's numbers: 1024x640).
 `before` is the sink as it was (a call per entity per packet, no wall-clock budget, nothing dropped),
 `after` the defaults of `evstream subscribe --serve`.
 """

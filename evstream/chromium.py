@@ -4,7 +4,8 @@ user on a headless machine would (tests, benchmarks/bench_viewer.py, the docs' s
 `--remote-debugging-pipe`: NUL-terminated JSON on file descriptors 3 and 4, which needs nothing beyond the
 standard library. Plain `--screenshot` cannot wait for the viewer: it shoots on the page's load event,
 while the wasm viewer is still "Loading Application Bundle"; callers re-shoot until the content is drawn.
-WebGL2 runs in software (SwiftShader), so it works without a GPU.
+WebGL2 runs in software (SwiftShader), so it works without a GPU. The page is 1600x1000 unless
+EVSTREAM_VIEWPORT says otherwise (e.g. 1024x640: software rendering costs grow with the pixels).
 """
 
 from __future__ import annotations
