@@ -68,8 +68,9 @@ def parse_header(lines: list[str]) -> dict:
 
 
 def header_version(h: dict) -> str | None:
-    if "evt" in h:
-        return _VERSIONS.get(h["evt"].split()[0])
+    words = h.get("evt", "").split()
+    if words:  # '% evt ' with no value says nothing: fall back to '% format'
+        return _VERSIONS.get(words[0])
     name = h.get("format_name", "")
     return {"EVT2": "evt2", "EVT21": "evt2.1", "EVT3": "evt3"}.get(name)
 

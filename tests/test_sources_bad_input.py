@@ -132,6 +132,13 @@ def _survives(path, data: bytes):
             assert str(path.name) in str(e)
 
 
+def test_a_raw_header_whose_evt_line_is_empty_is_read_or_refused_in_one_line(tmp_path):
+    """'% evt ' with no value (a file cut inside its header: hypothesis found it) was an IndexError."""
+    head = _samples()["a.raw"].split(b"% evt", 1)[0]
+    for tail in (b"% evt ", b"% evt \n", b"% evt \n% end\n"):
+        _survives(tmp_path / "a.raw", head + tail)
+
+
 @pytest.mark.parametrize("name", ["a.raw", "b.raw", "c.dat", "d.bin", "e.aedat", "f.txt", "g.h5", "h.npy",
                                   "i.mat"])
 @FUZZ
