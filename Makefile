@@ -30,7 +30,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks
 
 lint: $(STAMP)
-	$(BIN)/ruff check evstream sources sinks tests benchmarks
+	$(BIN)/ruff check evstream sources sinks tests benchmarks examples
 
 # The shipped synthetic recordings (deterministic: same seeds, same files).
 recordings: $(STAMP)

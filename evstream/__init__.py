@@ -1,10 +1,35 @@
-"""evstream: a streaming pipeline for event cameras (sources -> denoise/framing stages -> sinks)."""
+"""evstream: a streaming pipeline for event cameras (sources -> denoise/framing stages -> sinks).
 
+The Python API (docs/api.md) is here: `open`/`read` a recording, `stage`/`framer`/`build_pipeline` by
+name, `classify`/`clean` chunks, streams or structured arrays, `open_sink` to write, `Denoise` as a
+tonic-style transform, `catalogue` to list every stage and framer.
+"""
+
+from .api import (
+    Denoise,
+    as_geometry,
+    batches,
+    build_pipeline,
+    catalogue,
+    classify,
+    clean,
+    framer,
+    from_structured,
+    info,
+    open,  # noqa: F401 - evstream.open, not in __all__ (below)
+    read,
+    set_params,
+    stage,
+    subscribe,
+)
 from .events import EventChunk, EventError, Frame, Geometry, NoiseClass, concat
 from .pipeline import Batch, Pipeline, RunStats
+from .writers import SinkWriter, convert, open_sink
 
 __version__ = "0.1.0"
+# `open` is left out of the star-import list: `from evstream import *` must not shadow the builtin
 __all__ = [
-    "Batch", "EventChunk", "EventError", "Frame", "Geometry", "NoiseClass", "Pipeline", "RunStats",
-    "concat",
+    "Batch", "Denoise", "EventChunk", "EventError", "Frame", "Geometry", "NoiseClass", "Pipeline", "RunStats",
+    "SinkWriter", "as_geometry", "batches", "build_pipeline", "catalogue", "classify", "clean", "concat",
+    "convert", "framer", "from_structured", "info", "open_sink", "read", "set_params", "stage", "subscribe",
 ]

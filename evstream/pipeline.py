@@ -267,6 +267,12 @@ def kinds(role: str) -> list[str]:
     return sorted(_REGISTRY[role])
 
 
+def factory(role: str, kind: str):
+    """The class (or function) registered as `kind`, unbuilt: for listings of its parameters."""
+    _load_plugins()
+    return _REGISTRY[role][kind]
+
+
 def build(role: str, spec: dict[str, Any]):
     """Instantiate a registered stage or framer from `{"kind": name, **params}`."""
     _load_plugins()

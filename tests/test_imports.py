@@ -81,7 +81,7 @@ def test_the_graph_sees_imports():
     """The check above is only worth something if it finds the edges: a few that must be there."""
     modules = _modules()
     assert "evstream.cli.common" in _imports("evstream.cli.replay", modules["evstream.cli.replay"], modules)
-    assert "evstream.sources" in _imports("evstream.cli.common", modules["evstream.cli.common"], modules)
+    assert "evstream.sources" in _imports("evstream.api", modules["evstream.api"], modules)
     assert "evstream.cli.subscriber" in _imports("evstream.cli.subscribe", modules["evstream.cli.subscribe"], modules)
 
 

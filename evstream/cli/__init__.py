@@ -18,7 +18,7 @@ import warnings
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off")
 
 from ..events import EventError
-from . import archive, evaluate, files, frames, publish, replay, router, subscribe, train
+from . import archive, evaluate, files, frames, publish, replay, router, stages, subscribe, train
 from .common import Progress, UsageError, event_rate
 from .replay import LagMeter
 
@@ -27,7 +27,7 @@ __all__ = ["LagMeter", "Progress", "event_rate", "main", "parser"]
 # the order `evstream --help` lists them in
 COMMANDS = (files.add_info_parser, replay.add_parser, archive.add_parser, frames.add_parser,
             files.add_convert_parser, evaluate.add_synth_parser, evaluate.add_eval_parser, train.add_parser,
-            publish.add_parser, subscribe.add_parser, router.add_parser)
+            publish.add_parser, subscribe.add_parser, router.add_parser, stages.add_parser)
 
 
 def parser() -> argparse.ArgumentParser:

@@ -11,33 +11,36 @@ import shutil
 import sys
 from pathlib import Path
 
+from .. import api
 from ..events import NoiseClass
 from ..framing import options as framer_options
-from ..pipeline import Pipeline, RunStats, build, kinds
+from ..pipeline import Pipeline, RunStats, kinds
 
 
 class UsageError(Exception):
     """A command line that cannot work (exit code 2)."""
 
 
-def open_recording(path: str, args=None):
-    from evstream.sources import open_source
-
-    options = {}
-    if getattr(args, "geometry", None):
-        options["geometry"] = geometry_flag(args.geometry)
-    if getattr(args, "timestamps", None):
-        options["timestamps"] = args.timestamps
-    source = open_source(path, **options)
+def reader_options(args) -> dict:
+    """The keyword options of `api.open` from the reader flags (`--geometry`, `--timestamps`,
+    `--start-us`/`--end-us`), each checked here: a bad one is a usage error naming what was typed."""
+    options = {"geometry": geometry_flag(args.geometry) if getattr(args, "geometry", None) else None,
+               "timestamps": getattr(args, "timestamps", None)}
     start, end = getattr(args, "start_us", None), getattr(args, "end_us", None)
-    if start is None and end is None:
-        return source
-    from ..transforms import TimeRangeSource
+    if start is not None or end is not None:
+        from ..transforms import TimeRange
 
-    try:
-        return TimeRangeSource(source, start, end)
-    except ValueError as e:
-        raise UsageError(f"--start-us {start} --end-us {end}: {str(e).removeprefix('time_range: ')}") from None
+        try:
+            TimeRange(start, end)
+        except ValueError as e:
+            raise UsageError(f"--start-us {start} --end-us {end}: {str(e).removeprefix('time_range: ')}") from None
+        options.update(start_us=start, end_us=end)
+    return options
+
+
+def open_recording(path: str, args=None):
+    """`api.open` with the reader flags."""
+    return api.open(path, **reader_options(args))
 
 
 def geometry_flag(text: str):
@@ -83,7 +86,11 @@ def add_source_flags(p) -> None:
 
 def add_pipeline_flags(p) -> None:
     p.add_argument("--denoise", metavar="NAME",
-                   help="denoise stage (none, truth, ...); default: the paper's, or an archive's stored classes")
+                   help="denoise stage (none, truth, ...; `evstream stages` lists them); default: the paper's, "
+                        "or an archive's stored classes")
+    p.add_argument("--set", metavar="PARAM=VALUE", action="append", default=[], dest="settings",
+                   help="a parameter of the --denoise stage, e.g. --set window_us=10000, or for the paper's "
+                        "--set coarse.window_us=10000 --set fine.lam=0.2 (repeatable; `evstream stages`)")
     p.add_argument("--pipeline", metavar="FILE.toml", help="pipeline description (overrides --denoise)")
     p.add_argument("--model", metavar="MODEL.npz", help="--denoise learned: a model from `evstream train` "
                    "(default: the shipped one)")
@@ -98,13 +105,19 @@ def pipeline_from_args(args, source) -> Pipeline:
     """The pipeline the flags name; with neither flag the paper's cascade, except on an evstream archive,
     whose events keep the classes stored with them (classifying them again would stack a second filter
     on the first): then no stage, and `args.stored_classes` is set for the summary to say so."""
+    settings = getattr(args, "settings", None) or []
     if getattr(args, "pipeline", None):
+        if settings:
+            raise UsageError(f"--set {settings[0]}: --set applies to --denoise; with --pipeline, set parameters "
+                             f"in {args.pipeline}")
         return Pipeline.from_toml(args.pipeline)
-    if args.denoise is None and getattr(source, "archive", False):
+    if args.denoise is None and not settings and getattr(source, "archive", False):
         args.stored_classes = True
         return Pipeline([])
     name = args.denoise or "paper"
     if name == "none":
+        if settings:
+            raise UsageError(f"--set {settings[0]}: --denoise none has no parameters")
         return Pipeline([])
     if name not in kinds("stage"):
         raise UsageError(f"--denoise {name}: unknown; choose from none, {', '.join(kinds('stage'))}")
@@ -113,7 +126,16 @@ def pipeline_from_args(args, source) -> Pipeline:
         if name != "learned":
             raise UsageError("--model and --keep go with --denoise learned")
         params = {k: v for k, v in (("model", args.model), ("keep", args.keep)) if v is not None}
-    return Pipeline([build("stage", {"kind": name, **params})])
+    try:
+        spec = api.set_params({"kind": name, **params}, settings)
+    except ValueError as e:
+        raise UsageError(f"--set {e}") from None
+    try:
+        return api.build_pipeline(spec)
+    except ValueError as e:  # a value the stage refuses, in the stage's words (as from a TOML file)
+        if not settings:
+            raise
+        raise UsageError(f"--set {' --set '.join(settings)}: {e}") from None
 
 
 def attach_framer(pipeline: Pipeline, args) -> None:

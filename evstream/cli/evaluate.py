@@ -6,9 +6,9 @@ import json
 import sys
 from pathlib import Path
 
-from .. import noise, synth
+from .. import api, noise, synth
 from ..events import EventError, Geometry
-from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note, open_recording
+from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note
 
 DEFAULT_NOISE_RATIO = 0.5  # what `make recordings` and the README use
 
@@ -150,10 +150,7 @@ def read_recordings(paths, min_duration_s: float, command: str, strict: bool = F
 
 
 def _read_all(path: str):
-    from ..events import concat
-
-    source = open_recording(path)
-    return concat(list(source), source.geometry)
+    return api.read(path)
 
 
 def add_synth_parser(sub) -> None:

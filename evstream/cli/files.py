@@ -5,9 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
-from ..events import NoiseClass
+from .. import api
 from ..safe_write import AtomicOutput
 from .common import (
     Progress,
@@ -18,42 +16,13 @@ from .common import (
     folder_note,
     not_the_input,
     open_recording,
+    reader_options,
 )
 
 
 def cmd_info(args) -> int:
-    source = open_recording(args.source, args)
-    n = 0
-    on = 0
-    t_first = t_last = None
-    labels = np.zeros(3, np.int64)
-    has_labels = True
-    for chunk in source:
-        if not len(chunk):
-            continue
-        n += len(chunk)
-        on += int(chunk.p.sum())
-        t_first = int(chunk.t[0]) if t_first is None else t_first
-        t_last = int(chunk.t[-1])
-        if chunk.label is None:
-            has_labels = False
-        else:
-            labels += chunk.class_counts("label")
-    duration = (t_last - t_first) if n else 0
-    out = {
-        "path": args.source,
-        "format": getattr(source, "format", type(source).__name__),
-        "width": source.geometry.width,
-        "height": source.geometry.height,
-        "events": n,
-        "t_first_us": t_first,
-        "t_last_us": t_last,
-        "duration_us": duration,
-        "rate_hz": n / (duration * 1e-6) if duration > 0 else 0.0,
-        "on_fraction": on / n if n else 0.0,
-        "labels": {c.name.lower(): int(labels[c]) for c in NoiseClass} if has_labels and n else None,
-        "source": source.info() if hasattr(source, "info") else {},  # reader details, after the read
-    }
+    out = api.info(args.source, **reader_options(args))
+    n, duration, t_first, t_last = out["events"], out["duration_us"], out["t_first_us"], out["t_last_us"]
     if args.json:
         print(json.dumps(out, default=str))
         return 0

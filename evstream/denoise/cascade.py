@@ -41,6 +41,11 @@ class PaperCascade:
         return self._stages[1]
 
     @property
+    def parts(self) -> dict:
+        """The two stages by parameter name (listings show `coarse.window_us`, `--set` reaches them)."""
+        return {"coarse": self.density, "fine": self.timeseries}
+
+    @property
     def history_us(self) -> int:
         """Warm-up before decisions are at full strength: Δt plus n/fs."""
         return self.density.window_us + self.timeseries.history_us

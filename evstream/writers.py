@@ -1,0 +1,242 @@
+"""Writing events from a loop: `open_sink(OUT)` picks the sink by the name (.mcap, .rrd, a Rerun viewer's
+URL, .npz native, .raw EVT3/EVT2, .h5 HDF5) and takes batches or chunks until closed.
+
+    with evstream.open_sink("out/clean.mcap", geometry=source.geometry) as sink:
+        for batch in evstream.batches(pipe, source):
+            sink.write(batch)
+
+Every output goes through `safe_write.AtomicOutput`: written beside the target (`OUT.part`) and renamed
+once whole, never onto an input; a failed run leaves what was there before. Native and HDF5 files take
+whole arrays, so they hold the events until closed; RAW is encoded as it comes (a writer thread), MCAP
+and Rerun stream.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+from pathlib import Path
+from typing import Any
+
+from .events import EventChunk, NoiseClass, concat
+from .pipeline import Batch, RunStats
+from .safe_write import AtomicOutput
+
+FILE_FORMATS = {".npz": "native", ".raw": "evt", ".h5": "hdf5", ".hdf5": "hdf5"}
+
+
+def open_sink(out, *, geometry=None, keep_noise: bool = False, framer: str | None = None, **options) -> SinkWriter:
+    """A sink for `out`, to `write(batch_or_chunk)` into and `close()` (or use `with`).
+
+    `keep_noise`: also write the events not classed SIGNAL (MCAP: one topic per class; files: every
+    event, with its class where the format has a place for it). `framer`: the framer's kind, for the
+    Rerun view. Other options go to the sink: MCAP `camera=`, `frames=`, `points=`, `metadata=`...;
+    Rerun `point_budget_hz=`, `slab_ms=`; RAW `evt=3|2`; native `meta=`.
+    """
+    from .api import as_geometry
+
+    geometry = as_geometry(geometry) if geometry is not None else None
+    name = os.fspath(out)
+    if name.startswith(("rerun+http://", "rerun+https://")) or name.endswith(".rrd"):
+        return _rerun(name, geometry, framer, options)
+    suffix = Path(name).suffix.lower()
+    if suffix == ".mcap":
+        from evstream.sinks.mcap_sink import McapSink
+
+        Path(name).parent.mkdir(parents=True, exist_ok=True)
+        options.setdefault("frames", False)
+        output = AtomicOutput(name)
+        try:
+            sink = McapSink(str(output.part), keep_noise=keep_noise, geometry=geometry, **options)
+        except BaseException:
+            output.discard()
+            raise
+        return SinkWriter(sink, output=output)
+    if suffix in FILE_FORMATS:
+        return SinkWriter(FileSink(name, geometry=geometry, keep_noise=keep_noise, **options))
+    raise ValueError(f"{name}: no sink for that name; outputs are .mcap, .rrd (or rerun+http://HOST:PORT/proxy),"
+                     " .npz (native), .raw (EVT3/EVT2), .h5 (HDF5)")
+
+
+def _rerun(name: str, geometry, framer, options) -> SinkWriter:
+    from evstream.sinks.rerun_sink import RerunSink
+    from evstream.sinks.rerun_viewer import open_output
+
+    if geometry is None:
+        raise ValueError(f"{name}: the Rerun view needs the sensor size: pass geometry=")
+    output = None if "://" in name else AtomicOutput(name)
+    try:
+        out = open_output(save=str(output.part) if output else None, connect=None if output else name)
+    except BaseException:
+        if output is not None:
+            output.discard()
+        raise
+    try:
+        sink = RerunSink(out.rec, geometry=geometry, framer=framer, **options)
+    except BaseException:
+        out.stop()
+        if output is not None:
+            output.discard()
+        raise
+    return SinkWriter(sink, after_close=lambda: (out.finish(), out.stop()), output=output)
+
+
+class SinkWriter:
+    """A sink fed from a loop: `write` takes a pipeline's `Batch` or a bare `EventChunk` (its events count
+    as classified, or all SIGNAL when unclassified); `close` gives the sink the run's statistics."""
+
+    def __init__(self, sink, after_close=None, output: AtomicOutput | None = None):
+        self.sink = sink
+        self.stats = RunStats()
+        self._after_close = after_close
+        self._output = output  # committed once closed: a failed run leaves the old OUT
+        self._closed = False
+
+    def write(self, item: Batch | EventChunk) -> None:
+        if isinstance(item, EventChunk):
+            self.stats.add(item, 0)
+            item = Batch(item, [], self.stats)
+        else:
+            self.stats = item.stats
+        self.sink.write(item)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.sink.close(self.stats)
+        finally:
+            if self._after_close is not None:
+                self._after_close()
+        if self._output is not None:
+            self._output.commit()
+
+    def __enter__(self) -> SinkWriter:
+        return self
+
+    def __exit__(self, kind, exc, tb) -> None:
+        if exc is None:
+            self.close()
+            return
+        if isinstance(self.sink, FileSink):  # a failed run leaves what was there before
+            self.sink.abandon()
+        output, self._output = self._output, None
+        try:
+            self.close()
+        except Exception:  # the loop's own error is the one to see
+            pass
+        finally:
+            if output is not None:
+                output.discard()
+
+
+class FileSink:
+    """Events into a native (.npz), RAW (.raw, EVT3 or EVT2) or HDF5 (.h5) file: SIGNAL only unless
+    `keep_noise`. Written to OUT.part, renamed to OUT when closed."""
+
+    def __init__(self, path, *, geometry=None, keep_noise: bool = False, evt: int | str = 3, meta: dict | None = None,
+                 inputs=()):
+        self.path = Path(path)
+        self.format = FILE_FORMATS[self.path.suffix.lower()]
+        if self.format == "evt":
+            if str(evt) not in ("3", "2"):
+                raise ValueError(f"evt {evt}: choose 3 or 2")
+            self.format = f"evt{evt}"
+        self.geometry = geometry
+        self.keep_noise = keep_noise
+        self.meta = meta
+        self.events = 0
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.output = AtomicOutput(self.path, inputs=inputs)
+        self.part = self.output.part
+        self._chunks: list[EventChunk] = []
+        self._queue: queue.Queue | None = None
+        self._thread = None
+        self._error: list[BaseException] = []
+
+    def write(self, batch: Batch) -> None:
+        chunk = batch.events if self.keep_noise else batch.events.of_class(NoiseClass.SIGNAL)
+        self.geometry = self.geometry or chunk.geometry
+        self.events += len(chunk)
+        if not self.format.startswith("evt"):
+            self._chunks.append(chunk)
+            return
+        if self._queue is None:  # the RAW encoder pulls from an iterable: it runs beside the loop
+            self._start_raw()
+        if self._error:
+            raise self._error[0]
+        self._queue.put(chunk)
+
+    def _start_raw(self) -> None:
+        from evstream.sources import prophesee_raw
+
+        self._queue = queue.Queue(maxsize=8)
+
+        def encode():
+            try:
+                prophesee_raw.save(self.part, iter(self._queue.get, None), self.geometry, version=self.format)
+            except BaseException as e:  # handed to the writing thread at its next write or close
+                self._error.append(e)
+                while self._queue.get() is not None:  # let the writer finish its puts
+                    pass
+
+        self._thread = threading.Thread(target=encode, name="evstream-raw-writer", daemon=True)
+        self._thread.start()
+
+    def close(self, stats: RunStats | None = None) -> None:
+        if self.format == "abandoned":
+            return
+        try:
+            if self.format.startswith("evt"):
+                if self._queue is None:
+                    self._start_raw()
+                self._queue.put(None)
+                self._thread.join()
+                if self._error:
+                    raise self._error[0]
+            else:
+                from evstream.sources import hdf5, native
+
+                if self.geometry is None:
+                    raise ValueError(f"{self.path}: no events and no geometry given")
+                events = concat(self._chunks, self.geometry)
+                self._chunks = []
+                if self.format == "native":
+                    native.save(self.part, events, self.meta)
+                else:
+                    hdf5.save(self.part, events)
+            self.output.commit()
+        finally:
+            self.output.discard()  # nothing once committed
+
+    def abandon(self) -> None:
+        """Drop what was written (an error in the loop): OUT stays as it was."""
+        if self._queue is not None and self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+        self.output.discard()
+        self.format, self._chunks = "abandoned", []
+
+    def describe(self) -> dict[str, Any]:
+        return {"out": str(self.path), "format": self.format, "events": self.events}
+
+
+def convert(path, out, *, evt: int | str = 3, **options) -> dict[str, Any]:
+    """Every event of a recording into another format (.npz native, .raw EVT3/EVT2, .h5 HDF5); returns
+    what `evstream convert` prints. The output is never the input (checked by file identity)."""
+    from .api import open as open_recording
+
+    out = Path(out)
+    if out.suffix.lower() not in FILE_FORMATS:
+        raise ValueError(f"{out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
+    source = open_recording(path, **options)
+    meta = {"converted_from": str(path), "source_format": getattr(source, "format", "?")}
+    sink = FileSink(out, geometry=source.geometry, keep_noise=True, evt=evt, meta=meta, inputs=[path])
+    writer = SinkWriter(sink)
+    with writer:
+        for chunk in source:
+            writer.write(chunk)
+    return {"source": str(path), "out": str(out), "format": sink.format, "events": sink.events,
+            "width": source.geometry.width, "height": source.geometry.height}

@@ -1,0 +1,185 @@
+"""The Python API (evstream.api, evstream.writers): what the CLI does, a script does — with the same results."""
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import evstream
+from evstream.cli import main
+from evstream.events import EventChunk, EventError, Geometry, NoiseClass
+from evstream.testing import random_stream
+
+G = Geometry(40, 30)
+BAR = "recordings/bar.npz"
+
+TONIC = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])  # tonic's DVS dtype
+FAERY = np.dtype([("t", "<u8"), ("x", "<u2"), ("y", "<u2"), ("on", "?")])  # faery's
+
+
+def as_dtype(chunk: EventChunk, dtype) -> np.ndarray:
+    out = np.zeros(len(chunk), dtype)
+    for name in dtype.names:
+        out[name] = chunk.p if name == "on" else getattr(chunk, name)
+    return out
+
+
+@pytest.mark.parametrize("dtype", [TONIC, FAERY], ids=["tonic", "faery"])
+def test_a_structured_array_is_classified_as_the_same_events_in_a_chunk(dtype):
+    chunk = random_stream(3, 4000, G)
+    want = evstream.stage("stcf", tau_us=5000)(chunk).cls
+    arr = as_dtype(chunk, dtype)
+    got = evstream.classify({"kind": "stcf", "tau_us": 5000}, arr, geometry=(40, 30, 2))
+    assert got.dtype == np.uint8 and np.array_equal(got, want)
+    kept = evstream.clean(evstream.stage("stcf", tau_us=5000), arr, geometry="40x30")
+    assert kept.dtype == dtype and np.array_equal(kept["t"], chunk.t[want == NoiseClass.SIGNAL])
+
+
+def test_a_stream_of_chunks_is_classified_chunk_by_chunk_as_the_whole():
+    chunk = random_stream(4, 3000, G)
+    whole = evstream.classify("paper", chunk)
+    parts = list(evstream.classify(evstream.build_pipeline("paper"), (chunk[a:a + 700] for a in range(0, 3000, 700))))
+    assert np.array_equal(np.concatenate([c.cls for c in parts]), whole)
+    kept = list(evstream.clean("paper", iter([chunk[:1500], chunk[1500:]])))
+    assert sum(len(c) for c in kept) == int((whole == 0).sum())
+
+
+@given(seed=st.integers(0, 2**16), n=st.integers(0, 500))
+def test_the_transform_is_a_fresh_stage_per_sample(seed, n):
+    chunk = random_stream(seed, n, G)
+    arr = as_dtype(chunk, TONIC)
+    transform = evstream.Denoise(sensor_size=(40, 30, 2), kind="stcf", tau_us=3000)
+    first, second = transform(arr), transform(arr)
+    assert np.array_equal(first, second)  # no state carried from one sample to the next
+    assert np.array_equal(first, arr[evstream.stage("stcf", tau_us=3000)(chunk).cls == 0])
+
+
+def test_the_transform_refuses_a_bad_stage_when_made_not_in_a_worker():
+    with pytest.raises(ValueError, match="unknown parameter 'tau'"):
+        evstream.Denoise(sensor_size=(40, 30), kind="stcf", tau=3)
+    assert "kind='stcf'" in repr(evstream.Denoise(sensor_size=(40, 30), kind="stcf"))
+
+
+def _off_sensor(a):
+    a = a.copy()
+    a["x"][3] = 40  # the sensor is 40 wide
+    return a
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda a: a[["x", "y", "t"]], "lacks field"),
+    (lambda a: a.astype([("x", "<i2"), ("y", "<i2"), ("t", "<f8"), ("p", "<i1")]), "integer microseconds"),
+    (lambda a: a[::-1], "goes back"),
+    (_off_sensor, "outside the 40x30 sensor"),
+])
+def test_a_structured_array_that_cannot_work_is_one_line(make, message):
+    arr = as_dtype(random_stream(5, 50, G), TONIC)
+    bad = make(arr)
+    with pytest.raises(EventError, match=message) as e:
+        evstream.classify("stcf", bad, geometry=G)
+    assert "\n" not in str(e.value)
+    with pytest.raises(EventError, match="pass geometry"):
+        evstream.classify("stcf", arr)
+
+
+def test_the_catalogue_lists_every_registered_kind_with_units_and_defaults():
+    entries = {(e["role"], e["kind"]): e for e in evstream.catalogue()}
+    from evstream.pipeline import kinds
+    assert {k for r, k in entries if r == "stage"} == set(kinds("stage"))
+    assert {k for r, k in entries if r == "framer"} == set(kinds("framer"))
+    paper = {p["name"]: p for p in entries["stage", "paper"]["parameters"]}
+    assert paper["coarse.window_us"]["default"] == 20_000 and paper["coarse.window_us"]["unit"] == "µs"
+    assert paper["fine.lam"]["default"] == evstream.stage("dc").lam
+    fw = {p["name"]: p for p in entries["framer", "fw"]["parameters"]}
+    assert fw["window_us"]["default"] == 10_000 and fw["all_events"]["unit"] == ""
+
+
+def test_settings_reach_sub_stages_and_are_checked():
+    spec = evstream.set_params({"kind": "paper"}, ["coarse.window_us=10000", "fine.lam=0.2", "coarse.mode=absolute"])
+    stage = evstream.stage(**spec)
+    assert stage.density.window_us == 10_000 and stage.timeseries.lam == 0.2 and stage.density.mode == "absolute"
+    with pytest.raises(ValueError, match="has no parameter 'coarse.bogus'; its parameters: coarse.radius_px"):
+        evstream.set_params({"kind": "paper"}, ["coarse.bogus=1"])
+    with pytest.raises(ValueError, match="expected PARAM=VALUE"):
+        evstream.set_params({"kind": "paper"}, ["coarse.window_us"])
+
+
+def test_set_on_the_command_line_is_the_api_with_the_same_parameters(capsys):
+    assert main(["replay", BAR, "--set", "coarse.window_us=5000", "--set", "fine.lam=0.3", "--json",
+                 "--save", "out/test_api/set.rrd"]) == 0
+    got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    classes = evstream.classify(evstream.stage("paper", coarse={"window_us": 5000}, fine={"lam": 0.3}),
+                                evstream.read(BAR))
+    default = evstream.classify("paper", evstream.read(BAR))
+    assert got["events_signal"] == int((classes == 0).sum()) != int((default == 0).sum())
+    assert main(["replay", BAR, "--set", "coarse.window_us=-1", "--save", "out/test_api/set.rrd"]) == 2
+    assert "--set coarse.window_us=-1: window_us must be" in capsys.readouterr().err
+    assert main(["replay", BAR, "--pipeline", "x.toml", "--set", "a=1", "--save", "out/test_api/set.rrd"]) == 2
+
+
+def test_evstream_stages_prints_the_catalogue(capsys):
+    assert main(["stages", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == json.loads(json.dumps(evstream.catalogue(), default=str))
+    assert main(["stages", "framer"]) == 0
+    out = capsys.readouterr().out
+    assert "window_us = 10000 µs" in out and "  paper " not in out and "stages (" not in out
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5", ".raw"])
+def test_a_file_sink_written_from_a_loop_holds_the_kept_events(tmp_path, suffix):
+    source = evstream.open(BAR)
+    pipe = evstream.build_pipeline("paper")
+    with evstream.open_sink(tmp_path / f"clean{suffix}") as sink:
+        for batch in evstream.batches(pipe, source):
+            sink.write(batch)
+    kept = evstream.clean("paper", evstream.read(BAR))
+    back = evstream.read(tmp_path / f"clean{suffix}")
+    assert back.geometry == source.geometry and len(back) == len(kept) == pipe.stats.per_class[0]
+    assert np.array_equal(back.t, kept.t) and np.array_equal(back.x, kept.x) and np.array_equal(back.p, kept.p)
+    assert [p.name for p in tmp_path.iterdir()] == [f"clean{suffix}"]  # no .part left
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".raw"])
+def test_a_loop_that_fails_leaves_the_old_file(tmp_path, suffix):
+    out = tmp_path / f"a{suffix}"
+    out.write_bytes(b"old")
+    with pytest.raises(RuntimeError), evstream.open_sink(out, geometry=G) as sink:
+        sink.write(random_stream(1, 100, G))
+        raise RuntimeError("the loop failed")
+    assert out.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+def test_mcap_and_rrd_sinks_from_a_loop(tmp_path):
+    source = evstream.open(BAR)
+    with evstream.open_sink(tmp_path / "a.mcap", geometry=source.geometry) as mcap, \
+            evstream.open_sink(tmp_path / "a.rrd", geometry=source.geometry) as rrd:
+        for chunk in evstream.clean("paper", source):
+            mcap.write(chunk)
+            rrd.write(chunk)
+    back = evstream.read(tmp_path / "a.mcap")
+    assert len(back) == len(evstream.clean("paper", evstream.read(BAR))) == rrd.stats.per_class[0]
+    assert (tmp_path / "a.rrd").stat().st_size > 1000
+    with pytest.raises(ValueError, match="no sink for that name"):
+        evstream.open_sink(tmp_path / "a.txt")
+
+
+def test_convert_is_the_command(tmp_path, capsys):
+    summary = evstream.convert(BAR, tmp_path / "a.raw", evt=2)
+    assert main(["convert", BAR, str(tmp_path / "b.raw"), "--evt", "2", "--json"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    keys = ("source", "format", "events", "width", "height")
+    assert [cli[k] for k in keys] == [summary[k] for k in keys]
+    assert (tmp_path / "a.raw").read_bytes() == (tmp_path / "b.raw").read_bytes()
+    with pytest.raises(ValueError, match="input"):
+        evstream.convert(tmp_path / "a.raw", tmp_path / "a.raw")
+    assert evstream.info(tmp_path / "a.raw")["events"] == summary["events"] == len(evstream.read(BAR))
+
+
+def test_open_keeps_a_time_range():
+    whole = evstream.read(BAR)
+    part = evstream.read(BAR, start_us=100_000, end_us=200_000)
+    want = whole[(whole.t >= 100_000) & (whole.t < 200_000)]
+    assert len(part) == len(want) > 0 and np.array_equal(part.t, want.t) and np.array_equal(part.x, want.x)
+    assert evstream.info(BAR, end_us=50_000)["events"] == int((whole.t < 50_000).sum())
