@@ -19,38 +19,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 
 import numpy as np
 
 from . import metrics
 from .events import EventChunk, NoiseClass
-from .noise import NoiseSpec, inject
+from .noise import Condition, NoiseSpec, as_signal, find_hot_pixels, inject  # noqa: F401 - re-exported
 from .pipeline import build
 
 RATIOS = (0.1, 0.2, 0.5, 1.0, 1.5, 2.0)
 RATES_HZ = (1.0, 3.0, 5.0)
 TPR_TARGETS = (0.8, 0.9)
 WARMUP_CAP = 0.3  # never skip more than this fraction of a recording as warm-up
-
-
-@dataclass(frozen=True)
-class Condition:
-    """One noise condition: a ratio (noise events per signal event) or a background rate (Hz/pixel)."""
-
-    noise_ratio: float | None = None
-    ba_rate_hz: float | None = None
-
-    @property
-    def name(self) -> str:
-        if self.noise_ratio is not None:
-            return f"{round(100 * self.noise_ratio)}%"
-        return f"{self.ba_rate_hz:g}Hz"
-
-    def spec(self) -> NoiseSpec:
-        if self.noise_ratio is not None:
-            return NoiseSpec(noise_ratio=self.noise_ratio, hot_share=0.1)
-        return NoiseSpec(ba_rate_hz=self.ba_rate_hz)
 
 
 def default_conditions() -> list[Condition]:
@@ -105,37 +85,6 @@ def history_us(stage) -> int:
     params = stage.params() if hasattr(stage, "params") else {}
     windows = [int(v) for k, v in params.items() if k.endswith("_us") and isinstance(v, (int, float))]
     return max(windows, default=0)
-
-
-# -- preparing the signal -----------------------------------------------------------------------------
-def find_hot_pixels(events: EventChunk, factor: float = 10.0, min_events: int = 20) -> np.ndarray:
-    """Flat indices of pixels firing far more than their 8 neighbours: at least `min_events` and more
-    than `factor` × (their neighbours' mean + 1). These are a real sensor's own hot pixels."""
-    g = events.geometry
-    counts = np.bincount(events.y.astype(np.int64) * g.width + events.x, minlength=g.n_pixels)
-    img = counts.reshape(g.height, g.width).astype(np.float64)
-    padded = np.pad(img, 1)
-    nb = sum(padded[1 + dy : 1 + dy + g.height, 1 + dx : 1 + dx + g.width]
-             for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)) / 8.0
-    hot = (img >= min_events) & (img > factor * (nb + 1.0))
-    return np.flatnonzero(hot.reshape(-1))
-
-
-def as_signal(events: EventChunk, set_aside_hot: bool = True) -> tuple[EventChunk, dict]:
-    """The clean signal of a recording, labelled SIGNAL: its SIGNAL-labelled events if it has labels,
-    else all its events minus its own hot pixels (set aside, counted in the returned notes)."""
-    notes = {"hot_pixels_set_aside": 0, "hot_events_set_aside": 0}
-    if events.label is not None:
-        events = events[events.label == NoiseClass.SIGNAL]
-    elif set_aside_hot and len(events):
-        hot = find_hot_pixels(events)
-        if len(hot):
-            pix = events.y.astype(np.int64) * events.geometry.width + events.x
-            drop = np.isin(pix, hot)
-            notes = {"hot_pixels_set_aside": int(len(hot)), "hot_events_set_aside": int(drop.sum())}
-            events = events[~drop]
-    events = events.replace(label=np.zeros(len(events), np.uint8), cls=None)
-    return events, notes
 
 
 # -- running ------------------------------------------------------------------------------------------

@@ -103,3 +103,53 @@ def _events(rng, g, t0, t1, pix, label):
     t = rng.integers(t0, max(t1, t0 + 1), n).astype(np.int64)
     return (t, (pix % g.width).astype(np.uint16), (pix // g.width).astype(np.uint16),
             rng.integers(0, 2, n).astype(np.uint8), np.full(n, label, np.uint8))
+
+
+# -- conditions and the clean signal they are injected into (evaluation and training share them) --
+@dataclass(frozen=True)
+class Condition:
+    """One noise condition: a ratio (noise events per signal event) or a background rate (Hz/pixel)."""
+
+    noise_ratio: float | None = None
+    ba_rate_hz: float | None = None
+
+    @property
+    def name(self) -> str:
+        if self.noise_ratio is not None:
+            return f"{round(100 * self.noise_ratio)}%"
+        return f"{self.ba_rate_hz:g}Hz"
+
+    def spec(self) -> NoiseSpec:
+        if self.noise_ratio is not None:
+            return NoiseSpec(noise_ratio=self.noise_ratio, hot_share=0.1)
+        return NoiseSpec(ba_rate_hz=self.ba_rate_hz)
+
+
+def find_hot_pixels(events: EventChunk, factor: float = 10.0, min_events: int = 20) -> np.ndarray:
+    """Flat indices of pixels firing far more than their 8 neighbours: at least `min_events` and more
+    than `factor` × (their neighbours' mean + 1). These are a real sensor's own hot pixels."""
+    g = events.geometry
+    counts = np.bincount(events.y.astype(np.int64) * g.width + events.x, minlength=g.n_pixels)
+    img = counts.reshape(g.height, g.width).astype(np.float64)
+    padded = np.pad(img, 1)
+    nb = sum(padded[1 + dy : 1 + dy + g.height, 1 + dx : 1 + dx + g.width]
+             for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)) / 8.0
+    hot = (img >= min_events) & (img > factor * (nb + 1.0))
+    return np.flatnonzero(hot.reshape(-1))
+
+
+def as_signal(events: EventChunk, set_aside_hot: bool = True) -> tuple[EventChunk, dict]:
+    """The clean signal of a recording, labelled SIGNAL: its SIGNAL-labelled events if it has labels,
+    else all its events minus its own hot pixels (set aside, counted in the returned notes)."""
+    notes = {"hot_pixels_set_aside": 0, "hot_events_set_aside": 0}
+    if events.label is not None:
+        events = events[events.label == NoiseClass.SIGNAL]
+    elif set_aside_hot and len(events):
+        hot = find_hot_pixels(events)
+        if len(hot):
+            pix = events.y.astype(np.int64) * events.geometry.width + events.x
+            drop = np.isin(pix, hot)
+            notes = {"hot_pixels_set_aside": int(len(hot)), "hot_events_set_aside": int(drop.sum())}
+            events = events[~drop]
+    events = events.replace(label=np.zeros(len(events), np.uint8), cls=None)
+    return events, notes

@@ -88,9 +88,8 @@ def add_pipeline_flags(p) -> None:
     p.add_argument("--denoise", metavar="NAME",
                    help="denoise stage (none, truth, ...; `evstream stages` lists them); default: the paper's, "
                         "or an archive's stored classes")
-    p.add_argument("--set", metavar="PARAM=VALUE", action="append", default=[], dest="settings",
-                   help="a parameter of the --denoise stage, e.g. --set window_us=10000, or for the paper's "
-                        "--set coarse.window_us=10000 --set fine.lam=0.2 (repeatable; `evstream stages`)")
+    p.add_argument("--set", metavar="PARAM=VALUE", action="append", default=[], dest="settings", help="a"
+                   " --denoise parameter (repeatable): --set coarse.window_us=10000 --set fine.lam=0.2; see stages")
     p.add_argument("--pipeline", metavar="FILE.toml", help="pipeline description (overrides --denoise)")
     p.add_argument("--model", metavar="MODEL.npz", help="--denoise learned: a model from `evstream train` "
                    "(default: the shipped one)")
@@ -130,9 +129,9 @@ def pipeline_from_args(args, source) -> Pipeline:
         spec = api.set_params({"kind": name, **params}, settings)
     except ValueError as e:
         raise UsageError(f"--set {e}") from None
-    try:
+    try:  # a value the stage refuses: in the stage's words (as from a TOML file)
         return api.build_pipeline(spec)
-    except ValueError as e:  # a value the stage refuses, in the stage's words (as from a TOML file)
+    except ValueError as e:
         if not settings:
             raise
         raise UsageError(f"--set {' --set '.join(settings)}: {e}") from None

@@ -24,9 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...evaluation import Condition, as_signal
 from ...events import EventChunk, NoiseClass
-from ...noise import inject
+from ...noise import Condition, as_signal, inject
 from .features import FEATURE_VERSION, FEATURES, HISTORY_US, N_FEATURES
 from .model import Model
 
