@@ -417,8 +417,8 @@ def test_ctrl_c_in_a_replay_stops_it_with_its_summary_and_the_file_so_far(tmp_pa
     try:
         part = Path(f"{rrd}.part")  # where the recording is written until whole (evstream.safe_write)
         deadline = time.monotonic() + 60
-        while not (part.exists() and part.stat().st_size > 0) and time.monotonic() < deadline:
-            time.sleep(0.05)  # events are flowing: the replay is past its start-up, Ctrl-C now stops it
+        while not (part.exists() and part.stat().st_size > 50_000) and time.monotonic() < deadline:
+            time.sleep(0.05)  # events are flowing (not just the header): past start-up, Ctrl-C now stops it
         time.sleep(0.5)
         assert proc.poll() is None, proc.stderr.read()
         proc.send_signal(signal.SIGINT)
