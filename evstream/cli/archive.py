@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
 
 from ..framing import options as framer_options
 from ..pipeline import build, paced
+from .batch import add_batch_flags, many, run_batch
 from .common import (
     STORED_CLASSES_NOTE,
     Progress,
@@ -29,43 +31,25 @@ from .common import (
 
 
 def cmd_archive(args) -> int:
-    """Clean a recording into an MCAP archive (EventPackets, noise per class, frames, provenance)."""
+    """Clean a recording into an MCAP archive (EventPackets, noise per class, frames, provenance); several
+    recordings, folders or globs into an output folder on a Dask cluster (evstream.batch)."""
     import signal
 
-    from evstream.sinks.mcap_sink import McapSink
-
+    if many(args.source, args.out, (".mcap",)):
+        return run_batch(args, archive_file, ".mcap")
+    args.source = args.source[0]
     if not args.out.endswith(".mcap"):
         raise UsageError(f"{args.out}: the archive's name must end in .mcap")
-    check_numbers(args, at_least_zero=("speed",), positive=("packet_us", "flush_s"))
-    not_the_input(args.source, args.out, "")  # `archive A.mcap A.mcap` emptied A.mcap and exited 0
-    source = open_recording(args.source, args)
-    pipeline = pipeline_from_args(args, source)
-    attach_framer(pipeline, args)
-    if args.frames and pipeline.framer is None:
-        pipeline.framer = build("framer", {"kind": "fw"})
-    provenance = {"source": str(args.source), "source_format": getattr(source, "format", type(source).__name__),
-                  "width": source.geometry.width, "height": source.geometry.height,
-                  "pipeline": pipeline.describe(), "command": sys.argv[1:] or None, "evstream": evstream_version()}
-    created = create_folder(Path(args.out).parent)
-    sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
-                    frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
-                    packet_us=args.packet_us,
-                    flush_s=args.flush_s, metadata=provenance, geometry=pipeline.out_geometry(source.geometry),
-                    inputs=[args.source])
-    progress = Progress(source, quiet=args.quiet)
     with StopOnSignal() as stop:
-        stats = pipeline.run(stop.chunks(paced(source, args.speed)), [sink], on_batch=progress)
-    progress.done()
-    summary = {**stats.as_dict(), "mcap": args.out, "created_folder": created or None, "packets": sink.packets,
-               "frames_written": sink.frames_written,
-               "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
+        summary, stats, created = archive_one(args, stop)
     if args.json:
         print(json.dumps(summary), flush=True)
     else:
         print(summary_line(stats))
         if getattr(args, "stored_classes", False):
             print(STORED_CLASSES_NOTE)
-        print(f"wrote {args.out}{folder_note(created)}: {sink.packets:,} event packets, {sink.frames_written:,} frames")
+        print(f"wrote {args.out}{folder_note(created)}: {summary['packets']:,} event packets, "
+              f"{summary['frames_written']:,} frames")
     if stop.signum is not None:
         print(f"evstream: interrupted by {signal.Signals(stop.signum).name}; {args.out} is complete up to there",
               file=sys.stderr)
@@ -73,10 +57,54 @@ def cmd_archive(args) -> int:
     return 0
 
 
+def archive_one(args, stop: StopOnSignal | None = None):
+    """Archive `args.source` to `args.out` (the one-file command without its printing); returns
+    (summary dict, RunStats, the folder it created or '')."""
+    import signal
+
+    from evstream.sinks.mcap_sink import McapSink
+
+    check_numbers(args, at_least_zero=("speed",), positive=("packet_us", "flush_s"))
+    not_the_input(args.source, args.out, "")  # `archive A.mcap A.mcap` emptied A.mcap and exited 0
+    source = open_recording(args.source, args)
+    pipeline = pipeline_from_args(args, source)
+    attach_framer(pipeline, args)
+    if args.frames and pipeline.framer is None:
+        pipeline.framer = build("framer", {"kind": "fw"})
+    command = getattr(args, "command_line", None) or sys.argv[1:] or None
+    provenance = {"source": str(args.source), "source_format": getattr(source, "format", type(source).__name__),
+                  "width": source.geometry.width, "height": source.geometry.height,
+                  "pipeline": pipeline.describe(), "command": command, "evstream": evstream_version()}
+    created = create_folder(Path(args.out).parent)
+    sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
+                    frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
+                    packet_us=args.packet_us,
+                    flush_s=args.flush_s, metadata=provenance, geometry=pipeline.out_geometry(source.geometry),
+                    inputs=[args.source])
+    progress = Progress(source, quiet=args.quiet)
+    chunks = paced(source, args.speed)
+    stats = pipeline.run(stop.chunks(chunks) if stop else chunks, [sink], on_batch=progress)
+    progress.done()
+    signum = stop.signum if stop else None
+    summary = {**stats.as_dict(), "mcap": args.out, "created_folder": created or None, "packets": sink.packets,
+               "frames_written": sink.frames_written,
+               "stopped_by": signal.Signals(signum).name if signum else None}
+    return summary, stats, created
+
+
+def archive_file(source: str, out: str, **flags) -> dict:
+    """One task of a batch (on a Dask worker): archive `source` to `out` with the command's flags (plain
+    values); returns the summary."""
+    args = argparse.Namespace(**flags, source=source, out=out)
+    args.quiet = True
+    return archive_one(args)[0]
+
+
 def add_parser(sub) -> None:
     p = sub.add_parser("archive", help="clean a recording into an MCAP archive (ROS 2, Foxglove, Rerun open it)")
-    p.add_argument("source")
-    p.add_argument("out", metavar="OUT.mcap")
+    p.add_argument("source", nargs="+", metavar="SOURCE",
+                   help="a recording; or several, folders and globs (then OUT is a folder: evstream.batch)")
+    p.add_argument("out", metavar="OUT.mcap|FOLDER")
     add_source_flags(p)
     add_pipeline_flags(p)
     p.add_argument("--keep-noise", action="store_true",
@@ -94,4 +122,5 @@ def add_parser(sub) -> None:
     p.add_argument("--json", action="store_true", help="print run statistics as JSON")
     add_quiet_flag(p)
     framer_options.add_framer_flags(p)
+    add_batch_flags(p)
     p.set_defaults(func=cmd_archive)

@@ -1,0 +1,197 @@
+"""Many recordings, one job: plan one task per recording (the input tree mirrored under an output folder)
+and run the tasks on a Dask `distributed` cluster — a local one (N worker processes, one thread each) or
+an existing scheduler's.
+
+A task carries only paths and plain parameters; the work function is named by reference (module and
+name), so nothing of the user's data is pickled onto the wire beyond Dask's own task messages. Each task
+writes whole-or-nothing (evstream.safe_write), which is what makes a re-run skip what is done and a task
+that Dask re-runs after a worker died safe: a half-written output never sits at the target's name.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["RECORDING_SUFFIXES", "Task", "TaskResult", "plan", "run_many", "start_client", "up_to_date"]
+
+# What a folder walk takes as a recording (open_source reads by content; a walk needs a name filter).
+RECORDING_SUFFIXES = (".npz", ".npy", ".h5", ".hdf5", ".aedat4", ".aedat", ".mat", ".mcap", ".dat", ".raw",
+                      ".bin", ".bs2", ".txt", ".csv")
+GLOB_MAGIC = set("*?[")
+
+
+@dataclass(frozen=True)
+class Task:
+    source: str
+    out: str
+
+
+@dataclass
+class TaskResult:
+    source: str
+    out: str
+    status: str  # "done", "skipped" (up to date) or "failed"
+    seconds: float = 0.0
+    events: int | None = None
+    classes: dict | None = None  # noise class name -> events
+    error: str | None = None
+    summary: dict = field(default_factory=dict)  # what the one-file function returned
+
+    def as_dict(self) -> dict:
+        return {"source": self.source, "out": self.out, "status": self.status, "seconds": self.seconds,
+                "events": self.events, "classes": self.classes, "error": self.error}
+
+
+def _is_recording(path: Path) -> bool:
+    name = path.name
+    return (path.suffix.lower() in RECORDING_SUFFIXES and not name.startswith(".")
+            and not name.endswith(".part") and path.is_file())
+
+
+def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
+    """One task per recording: a file goes to OUT/NAME, a folder's recordings (walked, sorted) to
+    OUT/PATH-BELOW-THE-FOLDER, a glob's matches to OUT/PATH-BELOW-THE-GLOB'S-FIXED-PART; each with its
+    suffix replaced by `suffix` (".mcap"). Raises ValueError for an input that matches nothing, or when
+    two recordings would write the same output."""
+    out_dir = Path(out_dir)
+    tasks: list[Task] = []
+    for text in inputs:
+        given = Path(text)
+        if GLOB_MAGIC & set(text):
+            fixed = []
+            for part in given.parts:
+                if GLOB_MAGIC & set(part):
+                    break
+                fixed.append(part)
+            base = Path(*fixed) if fixed else Path(".")
+            found = sorted(Path(p) for p in glob.glob(text, recursive=True))
+            found = [p for p in found if _is_recording(p)] + [
+                q for p in found if p.is_dir() for q in sorted(p.rglob("*")) if _is_recording(q)]
+            pairs = [(p, p.relative_to(base)) for p in found]
+            if not pairs:
+                raise ValueError(f"{text}: matches no recording")
+        elif given.is_dir():
+            pairs = [(p, p.relative_to(given))
+                     for p in sorted(given.rglob("*")) if _is_recording(p)]
+            if not pairs:
+                raise ValueError(f"{text}: a folder with no recording in it ({', '.join(RECORDING_SUFFIXES)})")
+        elif given.exists():
+            pairs = [(given, Path(given.name))]
+        else:
+            raise ValueError(f"{text}: no such file or folder")
+        tasks += [Task(str(src), str(out_dir / rel.with_suffix(suffix))) for src, rel in pairs]
+    seen: dict[str, str] = {}
+    for t in tasks:
+        key = os.path.normpath(os.path.abspath(t.out))
+        if key in seen and seen[key] != t.source:
+            raise ValueError(f"{t.out}: both {seen[key]} and {t.source} would write it; archive them separately")
+        seen[key] = t.source
+    unique = {os.path.normpath(os.path.abspath(t.out)): t for t in tasks}  # a recording named twice: once
+    return list(unique.values())
+
+
+def up_to_date(task: Task) -> bool:
+    """Whether the task's output is complete and newer than its input. Complete because every writer puts
+    it in place whole (a temporary renamed when done): an output at the target's name is a finished one."""
+    try:
+        return os.stat(task.out).st_mtime_ns >= os.stat(task.source).st_mtime_ns
+    except OSError:
+        return False
+
+
+def worker_env() -> dict[str, str]:
+    """One numba thread per worker process: N workers use N cores, not N x cores."""
+    return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+
+
+def start_client(jobs: int | None = None, scheduler: str | None = None):
+    """A Dask client: on an existing scheduler (`tcp://HOST:8786`), or on a new local cluster of `jobs`
+    worker processes (default: the cores this process may use), one thread each, dashboard off. Returns
+    (client, cluster or None); close both when done."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        return Client(scheduler), None
+    n = jobs or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                           env=worker_env(), host="127.0.0.1")
+    return Client(cluster), cluster
+
+
+def _run_task(work: Callable, source: str, out: str, params: dict) -> dict:
+    """On a worker: the one-file function, timed; its error as one line (the job goes on)."""
+    t0 = time.perf_counter()
+    try:
+        summary = work(source, out, **params)
+    except Exception as e:  # one recording's failure is reported, not the job's
+        return {"ok": False, "error": f"{type(e).__name__}: {e}" if not str(e) else str(e),
+                "seconds": time.perf_counter() - t0}
+    return {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0}
+
+
+def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, client=None, jobs: int | None = None,
+             scheduler: str | None = None, force: bool = False, retries: int = 2,
+             on_result: Callable[[TaskResult, int, int], None] | None = None,
+             warm: Callable[[], None] | None = None) -> list[TaskResult]:
+    """Run `work(source, out, **params)` for every task (skipping up-to-date outputs unless `force`) on a
+    Dask cluster; returns one TaskResult per task, in the tasks' order. `work` must be importable on the
+    workers (a module-level function) and return a dict (with `events_in` and `events_signal`, ... when it
+    has them). `warm()` runs once here before anything is submitted (numba's on-disk cache, compiled once
+    instead of once per worker). `retries`: Dask's re-runs of a task whose worker died or that raised.
+    `on_result(result, done, total)` is called as each finishes (progress)."""
+    from distributed import as_completed
+
+    params = params or {}
+    results: dict[Task, TaskResult] = {}
+    todo = []
+    for t in tasks:
+        if not force and up_to_date(t):
+            results[t] = TaskResult(t.source, t.out, "skipped")
+        else:
+            todo.append(t)
+    total, done = len(tasks), len(results)
+    if on_result:
+        for r in results.values():
+            on_result(r, done, total)
+    if todo:
+        if warm is not None:
+            warm()
+        own = client is None
+        cluster = None
+        if own:
+            client, cluster = start_client(jobs, scheduler)
+        try:
+            futures = {client.submit(_run_task, work, t.source, t.out, params, retries=retries, pure=False,
+                                     key=f"evstream-{i}-{os.path.basename(t.source)}"): t
+                       for i, t in enumerate(todo)}
+            for future in as_completed(futures):
+                t = futures[future]
+                try:
+                    got = future.result()
+                except Exception as e:  # the task's worker kept dying (Dask gave up), or it was lost
+                    got = {"ok": False, "error": f"{type(e).__name__}: {e}", "seconds": 0.0}
+                results[t] = _result(t, got)
+                done += 1
+                if on_result:
+                    on_result(results[t], done, total)
+        finally:
+            if own:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
+    return [results[t] for t in tasks]
+
+
+def _result(t: Task, got: dict) -> TaskResult:
+    if not got["ok"]:
+        return TaskResult(t.source, t.out, "failed", seconds=got["seconds"], error=got["error"])
+    s = got["summary"] or {}
+    classes = {name: int(s[f"events_{name}"]) for name in ("signal", "background", "hot_pixel")
+               if f"events_{name}" in s} or None
+    events = s.get("events_in", s.get("events"))
+    return TaskResult(t.source, t.out, "done", seconds=got["seconds"], events=events, classes=classes, summary=s)

@@ -1,0 +1,111 @@
+"""Many recordings in one command (`evstream archive DATASET/ OUT/`, `evstream convert 'rec/*.raw' OUT/`):
+the flags, the plan, the run on a Dask cluster (evstream.batch), the progress and the summary table."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+from collections.abc import Callable
+
+from .. import batch
+from .common import Progress, UsageError
+
+# The parsed flags that are not the one-file function's (or are not plain values for the wire).
+NOT_FORWARDED = {"source", "out", "jobs", "scheduler", "force", "command", "func", "debug"}
+
+
+def add_batch_flags(p) -> None:
+    g = p.add_argument_group("many recordings (SOURCE... OUT/FOLDER)")
+    g.add_argument("--jobs", "-j", type=int, metavar="N",
+                   help="worker processes on this machine, one thread each (default: the cores available)")
+    g.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on an existing Dask cluster instead")
+    g.add_argument("--force", action="store_true", help="redo recordings whose outputs are already up to date")
+
+
+def many(sources: list[str], out: str, one_file_suffixes: tuple[str, ...]) -> bool:
+    """Whether the command line is the many-recordings form: several sources, a folder or a glob, or an
+    output that is not a file of the command's kind (then it is a folder)."""
+    if len(sources) > 1 or not out.lower().endswith(one_file_suffixes):
+        return True
+    src = sources[0]
+    return os.path.isdir(src) or (bool(batch.GLOB_MAGIC & set(src)) and not os.path.exists(src))
+
+
+def run_batch(args, work: Callable, suffix: str) -> int:
+    """Plan and run the tasks; print failures as they come, then the table (or --json). Exit 1 when a
+    recording failed."""
+    if args.jobs is not None and args.jobs < 1:
+        raise UsageError(f"--jobs {args.jobs}: must be at least 1")
+    if os.path.isfile(args.out):
+        raise UsageError(f"{args.out}: many recordings go to a folder, and this is a file")
+    try:
+        tasks = batch.plan(args.source, args.out, suffix)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    params = {k: v for k, v in vars(args).items()
+              if k not in NOT_FORWARDED and (v is None or isinstance(v, str | int | float | bool))}
+    params["command_line"] = sys.argv[1:] or None
+    progress = Progress(quiet=args.quiet, desc=f"{args.command} ", unit="recordings", delay_s=0.5)
+
+    def on_result(r: batch.TaskResult, done: int, total: int) -> None:
+        if r.status == "failed":
+            print(f"evstream: {r.source}: {r.error}", file=sys.stderr, flush=True)
+        progress.update(done, total)
+
+    def warm() -> None:  # numba's on-disk cache compiled here, once, not in every worker
+        _warm(work, suffix, params)
+
+    try:
+        results = batch.run_many(tasks, work, params, jobs=args.jobs, scheduler=args.scheduler, force=args.force,
+                                 on_result=on_result, warm=warm)
+    finally:
+        progress.done()
+    failed = [r for r in results if r.status == "failed"]
+    if args.json:
+        print(json.dumps({"recordings": [r.as_dict() for r in results], "done": sum(r.status == "done" for r in
+                                                                                   results),
+                          "skipped": sum(r.status == "skipped" for r in results), "failed": len(failed)}))
+    else:
+        print(table(results))
+    return 1 if failed else 0
+
+
+def _warm(work: Callable, suffix: str, params: dict) -> None:
+    """The work function once on a tiny synthetic recording (its numba kernels compiled and cached on
+    disk). A failure here is not the job's: the real tasks say what is wrong."""
+    from evstream import synth
+    from evstream.sources import native
+
+    with tempfile.TemporaryDirectory(prefix="evstream-warm-") as tmp:
+        try:
+            rec = os.path.join(tmp, "warm.npz")
+            native.save(rec, synth.scene("bar", duration_us=20_000, seed=0))
+            work(rec, os.path.join(tmp, "warm" + suffix), **{**params, "quiet": True})
+        except Exception:  # noqa: BLE001 - see the docstring
+            pass
+
+
+def table(results: list[batch.TaskResult]) -> str:
+    """One line per recording (events, classes, seconds, or the error), then the totals."""
+    rows = [("recording", "status", "events", "signal", "background", "hot pixel", "s")]
+    for r in results:
+        c = r.classes or {}
+        rows.append((r.source, r.status, _n(r.events), _n(c.get("signal")), _n(c.get("background")),
+                     _n(c.get("hot_pixel")), f"{r.seconds:.2f}" if r.status == "done" else ""))
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(v.ljust(w) if i < 2 else v.rjust(w) for i, (v, w) in enumerate(zip(row, widths)))
+             for row in rows]
+    for r in results:
+        if r.status == "failed":
+            lines.append(f"failed: {r.source}: {r.error}")
+    done = [r for r in results if r.status == "done"]
+    lines.append(f"{len(done)} done, {sum(r.status == 'skipped' for r in results)} skipped (up to date; --force "
+                 f"redoes them), {sum(r.status == 'failed' for r in results)} failed; "
+                 f"{sum(r.events or 0 for r in done):,} events in {sum(r.seconds for r in done):.2f} task-seconds")
+    return "\n".join(lines)
+
+
+def _n(v) -> str:
+    return "" if v is None else f"{v:,}"

@@ -1,0 +1,160 @@
+"""Many recordings on a real Dask cluster (evstream.batch, `evstream archive FOLDER/ OUT/`): a
+`distributed.LocalCluster` of two worker processes archives a folder (the shipped recordings and
+synthetic ones made with the API), compared event for event with the one-file command; a worker killed
+mid-job; a re-run that skips what is done; a bad recording reported while the others go on."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from evstream.sources import native, open_source
+
+from evstream import batch, synth
+from evstream.cli import main
+from evstream.cli.archive import archive_file
+from evstream.events import concat
+
+distributed = pytest.importorskip("distributed")
+
+ROOT = Path(__file__).resolve().parents[1]
+# The one-file command's flags, also the batch's: every class kept (compared too), a fifth of a second of
+# each recording (quick on a loaded machine).
+FLAGS = ["--keep-noise", "--end-us", "200000", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                       env=batch.worker_env(), host="127.0.0.1")
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """recordings/*.npz, and synthetic ones (made with the API) one folder down."""
+    root = tmp_path_factory.mktemp("dataset")
+    for rec in sorted((ROOT / "recordings").glob("*.npz")):
+        shutil.copy(rec, root / rec.name)
+    (root / "synthetic").mkdir()
+    for seed, scene in enumerate(("bar", "ball", "turntable")):
+        native.save(root / "synthetic" / f"{scene}.npz", synth.scene(scene, duration_us=150_000, seed=seed))
+    return root
+
+
+def events_of(path) -> dict:
+    chunk = concat(list(open_source(path)))
+    return {k: getattr(chunk, k) for k in ("t", "x", "y", "p", "cls", "label") if getattr(chunk, k) is not None}
+
+
+def assert_same_events(a, b):
+    ea, eb = events_of(a), events_of(b)
+    assert ea.keys() == eb.keys()
+    assert len(ea["t"]) > 0
+    for k in ea:
+        np.testing.assert_array_equal(ea[k], eb[k], err_msg=f"{a} vs {b}: {k}")
+
+
+def params(**extra) -> dict:
+    from evstream.cli import parser
+
+    args = parser().parse_args(["archive", "a.npz", "b.mcap", *FLAGS])
+    p = {k: v for k, v in vars(args).items() if k not in {"source", "out", "command", "func", "debug", "jobs",
+                                                           "scheduler", "force"}}
+    return {**p, **extra}
+
+
+def test_plan_mirrors_the_tree_and_refuses_collisions(dataset, tmp_path):
+    tasks = batch.plan([str(dataset)], tmp_path / "out", ".mcap")
+    got = sorted(os.path.relpath(t.out, tmp_path / "out") for t in tasks)
+    assert got == ["ball.mcap", "bar.mcap", "synthetic/ball.mcap", "synthetic/bar.mcap", "synthetic/turntable.mcap",
+                   "turntable.mcap"]
+    globbed = batch.plan([str(dataset / "synthetic" / "b*.npz")], tmp_path / "out", ".mcap")
+    assert [Path(t.out).name for t in globbed] == ["ball.mcap", "bar.mcap"]
+    with pytest.raises(ValueError, match="would write it"):
+        batch.plan([str(dataset / "bar.npz"), str(dataset / "synthetic" / "bar.npz")], tmp_path / "o", ".mcap")
+    with pytest.raises(ValueError, match="matches no recording"):
+        batch.plan([str(dataset / "*.nothing")], tmp_path / "o", ".mcap")
+
+
+def test_cluster_archives_a_folder_as_the_one_file_command(client, dataset, tmp_path):
+    out = tmp_path / "out"
+    tasks = batch.plan([str(dataset)], out, ".mcap")
+    results = batch.run_many(tasks, archive_file, params(), client=client)
+    assert [r.status for r in results] == ["done"] * len(tasks), [r.error for r in results]
+    for task, r in zip(tasks, results):
+        one = tmp_path / "one" / (Path(task.out).name)
+        assert main(["archive", task.source, str(one), *FLAGS]) == 0
+        assert_same_events(task.out, one)
+        assert r.events == len(events_of(one)["t"])
+        assert sum(r.classes.values()) == r.events
+    assert not list(out.rglob("*.part"))
+
+
+def test_a_worker_killed_mid_job_loses_and_duplicates_nothing(client, dataset, tmp_path):
+    out = tmp_path / "out"
+    tasks = batch.plan([str(dataset)], out, ".mcap")
+    killed = []
+
+    def kill_a_busy_worker(result, done, total):
+        if killed:
+            return
+        for _ in range(200):  # a worker with a task in hand (the other one may be between tasks)
+            busy = [w for w, keys in client.processing().items() if keys]
+            if busy:
+                pid = client.run(os.getpid, workers=[busy[0]])[busy[0]]
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+                return
+            time.sleep(0.01)
+
+    results = batch.run_many(tasks, archive_file, params(speed=0.5), client=client, on_result=kill_a_busy_worker)
+    assert killed, "no worker was busy after the first task finished"
+    assert [r.status for r in results] == ["done"] * len(tasks), [r.error for r in results]
+    written = sorted(p for p in out.rglob("*.mcap"))
+    assert written == sorted(Path(t.out) for t in tasks)  # each once, under its own name
+    reference = tmp_path / "reference"
+    for task in tasks:
+        one = reference / Path(task.out).relative_to(out)
+        assert main(["archive", task.source, str(one), *FLAGS]) == 0
+        assert_same_events(task.out, one)
+    # what the killed task had written stays beside its target as a .part, never at the target's name
+    assert all(p.name.endswith(".part") for p in out.rglob("*") if p.is_file() and p.suffix != ".mcap")
+    client.wait_for_workers(2, timeout=60)  # the nanny restarts the worker
+
+
+def test_rerun_skips_what_is_done_and_reports_a_bad_recording(client, dataset, tmp_path, capsys):
+    data = tmp_path / "data"
+    shutil.copytree(dataset, data)
+    (data / "broken.npz").write_bytes(b"PK\x03\x04 not a zip at all")
+    out = tmp_path / "out"
+    address = client.scheduler.address
+    argv = ["archive", str(data), str(out), "--scheduler", address, *FLAGS, "--json"]
+    assert main(argv) == 1  # the broken one failed, the others are done
+    first = capsys.readouterr()
+    assert "broken.npz" in first.err and "Traceback" not in first.err
+    import json
+
+    report = json.loads(first.out)
+    assert (report["done"], report["skipped"], report["failed"]) == (6, 0, 1)
+    assert not (out / "broken.mcap").exists()
+    mtimes = {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap")}
+    os.utime(data / "bar.npz")  # newer than its archive: redone
+    (data / "broken.npz").unlink()
+    assert main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    status = {Path(r["source"]).relative_to(data).as_posix(): r["status"] for r in report["recordings"]}
+    assert status.pop("bar.npz") == "done"
+    assert set(status.values()) == {"skipped"}
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.mcap") if p.name != "bar.mcap"} == {
+        p: t for p, t in mtimes.items() if p.name != "bar.mcap"}
+    assert main([*argv, "--force"]) == 0
+    assert json.loads(capsys.readouterr().out)["done"] == 6
