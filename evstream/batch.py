@@ -89,7 +89,7 @@ def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
     for t in tasks:
         key = os.path.normpath(os.path.abspath(t.out))
         if key in seen and seen[key] != t.source:
-            raise ValueError(f"{t.out}: both {seen[key]} and {t.source} would write it; archive them separately")
+            raise ValueError(f"{t.out}: both {seen[key]} and {t.source} would write it; run them separately")
         seen[key] = t.source
     unique = {os.path.normpath(os.path.abspath(t.out)): t for t in tasks}  # a recording named twice: once
     return list(unique.values())

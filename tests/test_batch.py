@@ -18,6 +18,7 @@ from evstream.sources import native, open_source
 from evstream import batch, synth
 from evstream.cli import main
 from evstream.cli.archive import archive_file
+from evstream.cli.batch import flags
 from evstream.events import concat
 
 distributed = pytest.importorskip("distributed")
@@ -64,12 +65,7 @@ def assert_same_events(a, b):
 
 
 def params(**extra) -> dict:
-    from evstream.cli import parser
-
-    args = parser().parse_args(["archive", "a.npz", "b.mcap", *FLAGS])
-    p = {k: v for k, v in vars(args).items() if k not in {"source", "out", "command", "func", "debug", "jobs",
-                                                           "scheduler", "force"}}
-    return {**p, **extra}
+    return {**flags("archive", *FLAGS), **extra}
 
 
 def test_plan_mirrors_the_tree_and_refuses_collisions(dataset, tmp_path):
@@ -158,3 +154,22 @@ def test_rerun_skips_what_is_done_and_reports_a_bad_recording(client, dataset, t
         p: t for p, t in mtimes.items() if p.name != "bar.mcap"}
     assert main([*argv, "--force"]) == 0
     assert json.loads(capsys.readouterr().out)["done"] == 6
+
+
+def test_convert_many_writes_what_the_one_file_command_writes(client, dataset, tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = ["convert", str(dataset / "synthetic" / "b*.npz"), str(dataset / "turntable.npz"), str(out), "--to", "raw",
+            "--scheduler", client.scheduler.address, "--quiet"]
+    assert main(argv) == 0
+    table = capsys.readouterr().out
+    assert "3 done, 0 skipped" in table and "0 failed" in table
+    for rec in [*sorted((dataset / "synthetic").glob("b*.npz")), dataset / "turntable.npz"]:
+        one = tmp_path / "one" / rec.with_suffix(".raw").name
+        assert main(["convert", str(rec), str(one), "--quiet"]) == 0
+        assert (out / one.name).read_bytes() == one.read_bytes()
+
+
+def test_several_recordings_need_a_folder(dataset, tmp_path, capsys):
+    assert main(["archive", str(dataset / "bar.npz"), str(dataset / "ball.npz"), str(tmp_path / "x.mcap")]) == 2
+    assert "go to a folder" in capsys.readouterr().err
+    assert main(["archive", str(dataset / "bar.npz"), str(tmp_path / "a.txt")]) == 2  # the one-file form's error

@@ -25,12 +25,30 @@ def add_batch_flags(p) -> None:
 
 
 def many(sources: list[str], out: str, one_file_suffixes: tuple[str, ...]) -> bool:
-    """Whether the command line is the many-recordings form: several sources, a folder or a glob, or an
-    output that is not a file of the command's kind (then it is a folder)."""
-    if len(sources) > 1 or not out.lower().endswith(one_file_suffixes):
+    """Whether the command line is the many-recordings form: OUT is a folder (it exists as one, ends in /
+    or has no extension). Several sources, a folder or a glob into a file name is a usage error; one
+    recording into a file name is the one-file form, as it always was."""
+    folder = out.endswith(("/", os.sep)) or os.path.isdir(out) or not os.path.splitext(out.rstrip("/"))[1]
+    if folder:
         return True
     src = sources[0]
-    return os.path.isdir(src) or (bool(batch.GLOB_MAGIC & set(src)) and not os.path.exists(src))
+    if len(sources) > 1 or os.path.isdir(src) or (bool(batch.GLOB_MAGIC & set(src)) and not os.path.exists(src)):
+        raise UsageError(f"{out}: several recordings (a folder, a glob) go to a folder: a name that exists as "
+                         "one, ends in / or has no extension")
+    return False
+
+
+def flags_of(args) -> dict:
+    """The one-file function's flags from parsed arguments, as plain values (what a task carries)."""
+    return {k: v for k, v in vars(args).items()
+            if k not in NOT_FORWARDED and (v is None or isinstance(v, str | int | float | bool))}
+
+
+def flags(command: str, *argv: str) -> dict:
+    """A command's flags as a task's plain values: `flags("archive", "--keep-noise")` for run_many."""
+    from . import parser
+
+    return flags_of(parser().parse_args([command, "SOURCE", "OUT", *argv]))
 
 
 def run_batch(args, work: Callable, suffix: str) -> int:
@@ -44,8 +62,7 @@ def run_batch(args, work: Callable, suffix: str) -> int:
         tasks = batch.plan(args.source, args.out, suffix)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    params = {k: v for k, v in vars(args).items()
-              if k not in NOT_FORWARDED and (v is None or isinstance(v, str | int | float | bool))}
+    params = flags_of(args)
     params["command_line"] = sys.argv[1:] or None
     progress = Progress(quiet=args.quiet, desc=f"{args.command} ", unit="recordings", delay_s=0.5)
 

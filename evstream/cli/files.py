@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
 from .. import api
 from ..safe_write import AtomicOutput
+from .batch import add_batch_flags, many, run_batch
 from .common import (
     Progress,
     UsageError,
@@ -45,11 +47,30 @@ def cmd_info(args) -> int:
 
 
 def cmd_convert(args) -> int:
+    """Convert a recording by the output's extension; several recordings, folders or globs into a folder
+    (the format from --to) on a Dask cluster (evstream.batch)."""
+    if many(args.source, args.out, OUT_KINDS):
+        return run_batch(args, convert_file, "." + args.to)
+    args.source = args.source[0]
+    summary = convert_one(args)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {summary['out']}{folder_note(summary['created_folder'] or '')} ({summary['format']}, "
+              f"{summary['width']}x{summary['height']}): {summary['events']:,} events")
+    return 0
+
+
+OUT_KINDS = (".npz", ".raw", ".h5", ".hdf5")
+
+
+def convert_one(args) -> dict:
+    """Convert `args.source` to `args.out` (the one-file command without its printing); the summary."""
     from evstream.sources import hdf5, native, prophesee_raw
 
     out = Path(args.out)
     kind = out.suffix.lower()
-    if kind not in (".npz", ".raw", ".h5", ".hdf5"):
+    if kind not in OUT_KINDS:
         raise UsageError(f"{args.out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
     not_the_input(args.source, out, "")  # by identity: `ln X.npz h.npz; convert X.npz h.npz` rewrote X
     source = open_recording(args.source, args)
@@ -73,13 +94,15 @@ def cmd_convert(args) -> int:
                 hdf5.save(part, events)
                 fmt = "hdf5"
     progress.done()
-    summary = {"source": args.source, "out": str(out), "format": fmt, "events": n,
-               "width": source.geometry.width, "height": source.geometry.height, "created_folder": created or None}
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(f"wrote {out}{folder_note(created)} ({fmt}, {source.geometry}): {n:,} events")
-    return 0
+    return {"source": args.source, "out": str(out), "format": fmt, "events": n,
+            "width": source.geometry.width, "height": source.geometry.height, "created_folder": created or None}
+
+
+def convert_file(source: str, out: str, **flags) -> dict:
+    """One task of a batch (on a Dask worker): convert `source` to `out` with the command's flags."""
+    args = argparse.Namespace(**flags, source=source, out=out)
+    args.quiet = True
+    return convert_one(args)
 
 
 def _reported(source, progress):
@@ -105,10 +128,14 @@ def add_info_parser(sub) -> None:
 
 def add_convert_parser(sub) -> None:
     p = sub.add_parser("convert", help="convert a recording: OUT.npz (native), OUT.raw (EVT3), OUT.h5")
-    p.add_argument("source")
-    p.add_argument("out")
+    p.add_argument("source", nargs="+", metavar="SOURCE",
+                   help="a recording; or several, folders and globs (then OUT is a folder: evstream.batch)")
+    p.add_argument("out", metavar="OUT|FOLDER")
     add_source_flags(p)
+    p.add_argument("--to", choices=["npz", "raw", "h5"], default="npz",
+                   help="many recordings: the output format (default npz; one file: OUT's extension)")
     p.add_argument("--evt", choices=["3", "2"], default="3", help="EVT version of a .raw output")
     p.add_argument("--json", action="store_true", help="print what was written as JSON")
     add_quiet_flag(p)
+    add_batch_flags(p)
     p.set_defaults(func=cmd_convert)
