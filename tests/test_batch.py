@@ -16,9 +16,8 @@ import pytest
 from evstream.sources import native, open_source
 
 from evstream import batch, synth
-from evstream.cli import main
+from evstream.cli import main, task_flags
 from evstream.cli.archive import archive_file
-from evstream.cli.batch import flags
 from evstream.events import concat
 
 distributed = pytest.importorskip("distributed")
@@ -65,7 +64,7 @@ def assert_same_events(a, b):
 
 
 def params(**extra) -> dict:
-    return {**flags("archive", *FLAGS), **extra}
+    return {**task_flags("archive", *FLAGS), **extra}
 
 
 def test_plan_mirrors_the_tree_and_refuses_collisions(dataset, tmp_path):

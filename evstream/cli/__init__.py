@@ -19,10 +19,11 @@ os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recordi
 
 from ..events import EventError
 from . import archive, evaluate, files, frames, publish, replay, router, stages, subscribe, train
+from .batch import flags_of
 from .common import Progress, UsageError, event_rate
 from .replay import LagMeter
 
-__all__ = ["LagMeter", "Progress", "event_rate", "main", "parser"]
+__all__ = ["LagMeter", "Progress", "event_rate", "main", "parser", "task_flags"]
 
 # the order `evstream --help` lists them in
 COMMANDS = (files.add_info_parser, replay.add_parser, archive.add_parser, frames.add_parser,
@@ -37,6 +38,12 @@ def parser() -> argparse.ArgumentParser:
     for add in COMMANDS:
         add(sub)
     return ap
+
+
+def task_flags(command: str, *argv: str) -> dict:
+    """A command's flags as a batch task's plain values, for evstream.batch.run_many:
+    `task_flags("archive", "--keep-noise")` (what `evstream archive ... --keep-noise` would use)."""
+    return flags_of(parser().parse_args([command, "SOURCE", "OUT", *argv]))
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

@@ -44,13 +44,6 @@ def flags_of(args) -> dict:
             if k not in NOT_FORWARDED and (v is None or isinstance(v, str | int | float | bool))}
 
 
-def flags(command: str, *argv: str) -> dict:
-    """A command's flags as a task's plain values: `flags("archive", "--keep-noise")` for run_many."""
-    from . import parser
-
-    return flags_of(parser().parse_args([command, "SOURCE", "OUT", *argv]))
-
-
 def run_batch(args, work: Callable, suffix: str) -> int:
     """Plan and run the tasks; print failures as they come, then the table (or --json). Exit 1 when a
     recording failed."""
