@@ -111,15 +111,22 @@ def worker_env() -> dict[str, str]:
 
 def start_client(jobs: int | None = None, scheduler: str | None = None):
     """A Dask client: on an existing scheduler (`tcp://HOST:8786`), or on a new local cluster of `jobs`
-    worker processes (default: the cores this process may use), one thread each, dashboard off. Returns
+    worker processes (default: the cores this process may use), one thread each, its HTTP endpoint on a
+    free loopback port (no clash with another cluster's 8787). Returns
     (client, cluster or None); close both when done."""
     from distributed import Client, LocalCluster
 
     if scheduler:
         return Client(scheduler), None
     n = jobs or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           env=worker_env(), host="127.0.0.1")
+    import dask
+
+    # pre-spawn: in the worker process's environment from its start (a spawned worker imports numba before
+    # the Nanny's `env` is applied, when the parent's __main__ is re-imported: the console script's is)
+    pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **worker_env()}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
+                               env=worker_env(), host="127.0.0.1")
     return Client(cluster), cluster
 
 

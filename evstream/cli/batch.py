@@ -49,6 +49,8 @@ def run_batch(args, work: Callable, suffix: str) -> int:
     recording failed."""
     if args.jobs is not None and args.jobs < 1:
         raise UsageError(f"--jobs {args.jobs}: must be at least 1")
+    if args.jobs is not None and args.scheduler:
+        raise UsageError("--jobs starts a cluster on this machine, --scheduler uses yours: one or the other")
     if os.path.isfile(args.out):
         raise UsageError(f"{args.out}: many recordings go to a folder, and this is a file")
     try:
