@@ -30,9 +30,8 @@ FLAGS = ["--keep-noise", "--end-us", "200000", "--quiet"]
 
 @pytest.fixture(scope="module")
 def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                       env=batch.worker_env(), host="127.0.0.1")
-    c = distributed.Client(cluster)
+    c, cluster = batch.start_client(jobs=2)  # a distributed.LocalCluster of 2 worker processes, 1 thread each
+    assert isinstance(cluster, distributed.LocalCluster) and len(cluster.workers) == 2
     yield c
     c.close()
     cluster.close()
@@ -65,6 +64,17 @@ def assert_same_events(a, b):
 
 def params(**extra) -> dict:
     return {**task_flags("archive", *FLAGS), **extra}
+
+
+def _numba_threads():
+    import numba
+
+    return numba.config.NUMBA_NUM_THREADS
+
+
+def test_workers_run_numba_on_one_thread(client):
+    assert set(client.run(_numba_threads).values()) == {1}
+    assert all(w["nthreads"] == 1 for w in client.scheduler_info()["workers"].values())
 
 
 def test_plan_mirrors_the_tree_and_refuses_collisions(dataset, tmp_path):
