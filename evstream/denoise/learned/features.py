@@ -17,6 +17,13 @@ For event m at (x, y, t, p), from the events before it only (FEATURES, version F
 State: a last-timestamp-and-polarity map, a row-summed count map per polarity (`rowsum`), the own
 and block counts, and a FIFO of the window's events: O(W·H + events per 20 ms), bounded.
 
+After the model, one rule: an event whose pixel fired `hot_min` (4) times or more in the last 20 ms,
+and more than a third of the events of its 5×5 box (its own included), is a HOT_PIXEL (score
+HOT_SCORE). Measured at 100 % noise (a model trained on the six real recordings): the logistic score
+alone removed 91.1 % (N-Caltech101) and 97.2 % (DVXplorer) of the hot-pixel events — the kept ones
+are 200–1600 Hz pixels in busy areas, whose own events fill the box count — with the rule 98.0 % and
+99.7 %, for 0.05 % and 0.03 % of the signal.
+
 One kernel is compiled per configuration (hidden units 0 = logistic score, else a one-hidden-layer
 ReLU MLP; scores, feature rows, whether earlier stages rejected events): no option costs anything per
 event. The features are standardised by folding the training mean and std into the first layer.
@@ -47,7 +54,8 @@ HISTORY_US = 50_000    # the longest time a feature looks back
 AGE_SHIFT = 6          # age quantised to 64 µs
 AGE_CELLS = 4096       # ... up to 4096 · 64 µs = 262 ms
 LOG_CELLS = 1 << 16    # log1p table for counts
-NEVER_US = -(2**61)  # (t << 1) stays in int64
+NEVER_US = -(2**61)
+HOT_SCORE = -1e9       # the score of an event the hot-pixel rule rejects  # (t << 1) stays in int64
 
 LARGE_SHIFT = 6
 LOG_LARGE = math.log(1 << LARGE_SHIFT)
@@ -193,10 +201,14 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                         h = (b1[j] + w1[j, 0] * f0 + w1[j, 1] * f1 + w1[j, 2] * f2 + w1[j, 3] * f3
                              + w1[j, 4] * f4 + w1[j, 5] * f5 + w1[j, 6] * f6 + w1[j, 7] * f7 + w1[j, 8] * f8)
                         s += w2[j] * max(h, 0.0)
+                # hot-pixel rule: the pixel fired hot_min times or more in 20 ms, at least half as
+                # often as all its 24 neighbours together (a linear score cannot express it)
+                hot = (own_c >= hot_min) & (3 * own_c > n0 + n1)
+                s = HOT_SCORE if hot else s
                 if want_score:
                     out_score[ix(i)] = s
-                # branchless: 0 kept, else 1 (background) or 2 (the pixel's own recent count is high)
-                codes[ix(i)] = (s < threshold) * (1 + (own_c >= hot_min))
+                # branchless: 0 kept, else 1 (background) or 2 (the hot-pixel rule)
+                codes[ix(i)] = (s < threshold) * (1 + hot)
                 pos = corner + R * width_padded
                 row_add(hsum, pos, 1 + (pi << 16), L)
                 own[ix(pix)] += 1

@@ -3,8 +3,8 @@
 `--denoise learned` uses the shipped model (trained on the synthetic scenes and permissively licensed
 recordings, docs/learned.md); `model = "PATH.npz"` takes one made by `evstream train`. `keep` picks the
 operating point: the fraction of the signal the model's calibration expects it to keep (default: the
-one it was trained for). Events scored below the threshold are BACKGROUND, or HOT_PIXEL when their
-pixel fired `hot_min` times or more in the last 20 ms.
+one it was trained for). Events scored below the threshold are BACKGROUND; an event whose pixel fired
+`hot_min` times or more in the last 20 ms, more than a third of its 5×5 box's events, is HOT_PIXEL.
 """
 
 from __future__ import annotations
