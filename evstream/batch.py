@@ -11,6 +11,7 @@ that Dask re-runs after a worker died safe: a half-written output never sits at 
 from __future__ import annotations
 
 import glob
+import logging
 import os
 import time
 from collections.abc import Callable, Iterable
@@ -112,7 +113,8 @@ def worker_env() -> dict[str, str]:
 def start_client(jobs: int | None = None, scheduler: str | None = None):
     """A Dask client: on an existing scheduler (`tcp://HOST:8786`), or on a new local cluster of `jobs`
     worker processes (default: the cores this process may use), one thread each, its HTTP endpoint on a
-    free loopback port (no clash with another cluster's 8787). Returns
+    free loopback port (no clash with another cluster's 8787), its log at errors only (a slow shutdown's
+    warnings are not the user's business; a task's failure is reported by run_many). Returns
     (client, cluster or None); close both when done."""
     from distributed import Client, LocalCluster
 
@@ -126,7 +128,7 @@ def start_client(jobs: int | None = None, scheduler: str | None = None):
     pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **worker_env()}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn}):
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
-                               env=worker_env(), host="127.0.0.1")
+                               env=worker_env(), host="127.0.0.1", silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
