@@ -92,7 +92,7 @@ density_params = st.fixed_dictionaries({
 dc_params = st.fixed_dictionaries({
     "rate_hz": st.sampled_from([1000.0, 10_000.0, 250.0]),
     "n_bins": st.sampled_from([1, 7, 64, 200]),
-    "lam": st.sampled_from([0.0, 0.05, 0.3]),
+    "lam": st.sampled_from([0.0, 0.05, 0.3, 0.5]),  # 0.5: ratio-form ties (own·n_nb = λ·active) occur
     "form": st.sampled_from(["difference", "ratio"]),
     "radius_px": st.integers(1, 2),
 })
