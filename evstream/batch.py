@@ -151,7 +151,9 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     Dask cluster; returns one TaskResult per task, in the tasks' order. `work` must be importable on the
     workers (a module-level function) and return a dict (with `events_in` and `events_signal`, ... when it
     has them). `warm()` runs once here before anything is submitted (numba's on-disk cache, compiled once
-    instead of once per worker). `retries`: Dask's re-runs of a task whose worker died or that raised.
+    instead of once per worker), then on every worker (its imports and cached kernels loaded, so a
+    recording's seconds are its own; `warm` must then be picklable by reference, e.g. a partial).
+    `retries`: Dask's re-runs of a task whose worker died or that raised.
     `on_result(result, done, total)` is called as each finishes (progress)."""
     from distributed import as_completed
 
@@ -175,6 +177,8 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
         if own:
             client, cluster = start_client(jobs, scheduler)
         try:
+            if warm is not None:  # each worker's imports and cached kernels loaded before its first recording
+                client.run(warm)
             futures = {client.submit(_run_task, work, t.source, t.out, params, retries=retries, pure=False,
                                      key=f"evstream-{i}-{os.path.basename(t.source)}"): t
                        for i, t in enumerate(todo)}

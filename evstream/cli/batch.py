@@ -3,6 +3,7 @@ the flags, the plan, the run on a Dask cluster (evstream.batch), the progress an
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import sys
@@ -66,12 +67,9 @@ def run_batch(args, work: Callable, suffix: str) -> int:
             print(f"evstream: {r.source}: {r.error}", file=sys.stderr, flush=True)
         progress.update(done, total)
 
-    def warm() -> None:  # numba's on-disk cache compiled here, once, not in every worker
-        _warm(work, suffix, params)
-
     try:
         results = batch.run_many(tasks, work, params, jobs=args.jobs, scheduler=args.scheduler, force=args.force,
-                                 on_result=on_result, warm=warm)
+                                 on_result=on_result, warm=functools.partial(_warm, work, suffix, params))
     finally:
         progress.done()
     failed = [r for r in results if r.status == "failed"]
