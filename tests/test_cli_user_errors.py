@@ -168,11 +168,15 @@ def test_publisher_whose_router_goes_away_says_how_much_nobody_received(tmp_path
     try:
         port = free_port()
         router = procs.router(port)
-        sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end")
+        sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end",
+                               "--archive", str(tmp_path / "flow.mcap"))
         # bar.npz is 0.5 s of events: 3.3 s at --speed 0.15, so the router dies in the middle
         pub = procs.start("publish", SHIPPED, "--key", "evstream/cam/events", "--connect", f"tcp/127.0.0.1:{port}",
                           "--speed", "0.15", "--wait-subscribers", "20", "--drain-s", "1", "--json")
-        time.sleep(2.5)
+        deadline = time.monotonic() + 60
+        while not any(tmp_path.glob("flow*")) and time.monotonic() < deadline:
+            time.sleep(0.05)  # the archive (or its temporary name) opens with the first packet: packets flow
+        time.sleep(1.0)  # a third of the stream out, two thirds to go (a fixed wait from start failed under load)
         assert pub.poll() is None, procs.stderr(pub)
         router.send_signal(signal.SIGTERM)
         router.wait(timeout=30)
