@@ -271,7 +271,10 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
                 start_new_session=True,  # the viewer outlives the replay
                 env={**os.environ, "RERUN_APP_ONLY": "true"},
             )
-        wait_listening(proc, host, [grpc_port], 30.0, log)
+        try:
+            wait_listening(proc, host, [grpc_port], 30.0, log)
+        except OSError as e:  # e.g. the display refused a window before the viewer listened
+            raise OSError(f"{e}: use --save OUT.rrd, or --serve for the web viewer") from None
         _wait_window(proc, log, 5.0)
         rec.connect_grpc(url)
         return RerunOutput(rec, "spawn", process=proc, grpc_url=url, log=log)

@@ -38,5 +38,7 @@ def test_spawn_with_a_display_that_refuses_a_window_says_so_in_one_line(tmp_path
     r = run({"DISPLAY": f":{number}"}, tmp_path, "replay", str(BAR), "--spawn", "--json")
     assert r.returncode == 1, r.stderr
     lines = [ln for ln in r.stderr.strip().splitlines() if ln]
-    assert len(lines) == 1 and lines[0].startswith("evstream: error: the desktop viewer exited"), r.stderr
+    # the viewer dies before or after it listens, as the machine's load has it: one line either way
+    assert len(lines) == 1 and lines[0].startswith("evstream: error: the "), r.stderr
+    assert "viewer exited" in lines[0], r.stderr
     assert "--save" in lines[0] and "severed" not in r.stderr and "internal error" not in r.stderr
