@@ -27,15 +27,14 @@ def add_batch_flags(p) -> None:
 
 def many(sources: list[str], out: str, one_file_suffixes: tuple[str, ...]) -> bool:
     """Whether the command line is the many-recordings form: OUT is a folder (it exists as one, ends in /
-    or has no extension). Several sources, a folder or a glob into a file name is a usage error; one
-    recording into a file name is the one-file form, as it always was."""
+    or has no extension). Several sources into a file name is a usage error; one source into a file name
+    is the one-file form, exactly as it always was (a folder there is its one-line error)."""
     folder = out.endswith(("/", os.sep)) or os.path.isdir(out) or not os.path.splitext(out.rstrip("/"))[1]
     if folder:
         return True
-    src = sources[0]
-    if len(sources) > 1 or os.path.isdir(src) or (bool(batch.GLOB_MAGIC & set(src)) and not os.path.exists(src)):
-        raise UsageError(f"{out}: several recordings (a folder, a glob) go to a folder: a name that exists as "
-                         "one, ends in / or has no extension")
+    if len(sources) > 1:  # one source into a file name keeps the one-file errors ("DIR: is a directory")
+        raise UsageError(f"{out}: several recordings go to a folder: a name that exists as one, ends in / or "
+                         "has no extension")
     return False
 
 
