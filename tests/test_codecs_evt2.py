@@ -3,8 +3,8 @@ faery agreement and the real Gen3 recording."""
 
 import numpy as np
 import pytest
-from codec_checks import BOUNDARY_CASES, checked_events, reference_check
-from hypothesis import example, given
+from codec_checks import assert_events_equal, check_kernel_agrees_with_reference, checked_events, with_boundary_examples
+from hypothesis import given
 from hypothesis import strategies as st
 
 from evstream.codecs import evt2
@@ -44,12 +44,6 @@ def reference_decode(data: bytes):
             counts["unknown"] += 1
     a = np.array(out, np.int64).reshape(-1, 4)
     return (a[:, 0], a[:, 1].astype(np.uint16), a[:, 2].astype(np.uint16), a[:, 3].astype(np.uint8)), counts
-
-
-def assert_events_equal(got, want):
-    for name, g, w in zip("txyp", got, want):
-        assert g.dtype == w.dtype, name
-        np.testing.assert_array_equal(g, w, err_msg=name)
 
 
 word = st.one_of(
@@ -133,23 +127,9 @@ def test_streaming_encoder_output_concatenates_to_one_stream(ev, cuts):
     assert_events_equal(evt2.decode(data), ev)
 
 
-def _boundary_examples(f):
-    for case in BOUNDARY_CASES:
-        f = example(case)(f)
-    return f
-
-
 @given(checked_events())
-@_boundary_examples
+@with_boundary_examples
 def test_check_kernel_matches_reference_on_random_events(ev):
     """The numba check against plain Python, events crowding every limit (x = 2047 and 2048, p = 2,
     a step back in time, a first event before `prev`); and the encoder refuses exactly that event."""
-    t, x, y, p, prev = ev
-    want = reference_check(t, x, y, p, prev)
-    assert evt2._check_kernel(t, x, y, p, np.int64(prev)) == want
-    if prev == 0 and len(t):  # a fresh encoder's `prev`: the public path names the same event
-        if want < 0:
-            assert_events_equal(evt2.decode(evt2.encode(t, x, y, p)), (t, x, y, p))
-        else:
-            with pytest.raises(ValueError, match=f"event {want} "):
-                evt2.encode(t, x, y, p)
+    check_kernel_agrees_with_reference(evt2, ev)

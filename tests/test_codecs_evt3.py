@@ -3,8 +3,8 @@ encode -> decode round trips, faery agreement, and the real Gen4.1 recording."""
 
 import numpy as np
 import pytest
-from codec_checks import BOUNDARY_CASES, checked_events, reference_check
-from hypothesis import example, given
+from codec_checks import assert_events_equal, check_kernel_agrees_with_reference, checked_events, with_boundary_examples
+from hypothesis import given
 from hypothesis import strategies as st
 
 from evstream.codecs import evt3
@@ -59,12 +59,6 @@ def reference_decode(data: bytes):
             out.append((t, xx, y, pp))
     a = np.array(out, np.int64).reshape(-1, 4)
     return (a[:, 0], a[:, 1].astype(np.uint16), a[:, 2].astype(np.uint16), a[:, 3].astype(np.uint8)), counts
-
-
-def assert_events_equal(got, want):
-    for name, g, w in zip("txyp", got, want):
-        assert g.dtype == w.dtype, name
-        np.testing.assert_array_equal(g, w, err_msg=name)
 
 
 # words biased towards the meaningful types, with garbage types mixed in
@@ -274,23 +268,9 @@ def test_streaming_encoder_output_concatenates_to_one_stream(ev, cuts):
             enc.encode(ev[0][-1:] - 1, ev[1][-1:], ev[2][-1:], ev[3][-1:])
 
 
-def _boundary_examples(f):
-    for case in BOUNDARY_CASES:
-        f = example(case)(f)
-    return f
-
-
 @given(checked_events())
-@_boundary_examples
+@with_boundary_examples
 def test_check_kernel_matches_reference_on_random_events(ev):
     """The numba check against plain Python, events crowding every limit (x = 2047 and 2048, p = 2,
     a step back in time, a first event before `prev`); and the encoder refuses exactly that event."""
-    t, x, y, p, prev = ev
-    want = reference_check(t, x, y, p, prev)
-    assert evt3._check_kernel(t, x, y, p, np.int64(prev)) == want
-    if prev == 0 and len(t):  # a fresh encoder's `prev`: the public path names the same event
-        if want < 0:
-            assert_events_equal(evt3.decode(evt3.encode(t, x, y, p)), (t, x, y, p))
-        else:
-            with pytest.raises(ValueError, match=f"event {want} "):
-                evt3.encode(t, x, y, p)
+    check_kernel_agrees_with_reference(evt3, ev)
