@@ -23,9 +23,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -41,14 +38,7 @@ from evstream.codecs.event_packet import encode_packet
 from evstream.codecs.packets import to_packet
 
 from .bench_viewer import make_recording
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from .common import cli, free_port, wait_line
 
 
 def _rss_mb(pid: int) -> float:
@@ -57,23 +47,6 @@ def _rss_mb(pid: int) -> float:
             return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
     except (OSError, StopIteration):
         return float("nan")
-
-
-def _cli(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "evstream.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-
-
-def _wait_line(p: subprocess.Popen, stream: str, text: str, timeout_s: float = 60) -> None:
-    deadline = time.monotonic() + timeout_s
-    pipe = getattr(p, stream)
-    while time.monotonic() < deadline:
-        line = pipe.readline()
-        if text in line:
-            return
-        if not line and p.poll() is not None:
-            raise RuntimeError(f"process exited before {text!r}: {pipe.read()}")
-    raise RuntimeError(f"no {text!r} within {timeout_s} s")
 
 
 def packets_of(recording: Path, packet_us: int) -> list:
@@ -110,19 +83,19 @@ class Sampler(threading.Thread):
 def run_case(packets: list, n_pub: int, n_packets: int, delay_ms: float, depth: int,
              stall_s: float = 0.0, packet_us: int = 50_000) -> dict:
     """N publishers x P packets into one slow subscriber through a router."""
-    port = _free_port()
+    port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     procs = []
     sessions = []
     try:
-        router = _cli("router", "--listen", ep)
+        router = cli("router", "--listen", ep)
         procs.append(router)
-        _wait_line(router, "stdout", "listening on")
-        sub = _cli("subscribe", "evstream/*/events", "--denoise", "none", "--connect", ep, "--flow", "block",
+        wait_line(router, "stdout", "listening on")
+        sub = cli("subscribe", "evstream/*/events", "--denoise", "none", "--connect", ep, "--flow", "block",
                    "--depth", str(depth), "--delay-ms", str(delay_ms), "--until-end", str(n_pub),
                    "--idle-s", "20" if stall_s else "600", "--json")  # a lost link can take the end mark along
         procs.append(sub)
-        _wait_line(sub, "stderr", "subscribed to")
+        wait_line(sub, "stderr", "subscribed to")
         pubs = []
         for i in range(n_pub):
             s = open_session(connect=[ep])

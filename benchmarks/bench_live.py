@@ -11,60 +11,32 @@ whole run and after its first second (the chain's start-up costs a few tens of m
 from __future__ import annotations
 
 import json
-import socket
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 from .bench_viewer import make_recording
-from .common import report
+from .common import cli, free_port, report, wait_line
 
-ROOT = Path(__file__).resolve().parents[1]
 LOADS_HZ = (1_000_000, 10_000_000)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _cli(*args, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "evstream.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)
-
-
-def _wait_line(p: subprocess.Popen, stream: str, text: str, timeout_s: float = 60) -> None:
-    deadline = time.monotonic() + timeout_s
-    pipe = getattr(p, stream)
-    while time.monotonic() < deadline:
-        line = pipe.readline()
-        if text in line:
-            return
-        if not line and p.poll() is not None:
-            raise RuntimeError(f"process exited before {text!r}")
-    raise RuntimeError(f"no {text!r} within {timeout_s} s")
-
-
 def run_chain(recording: Path, n_events: int, rate_hz: float, load_hz: float) -> dict:
-    port = _free_port()
+    port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     procs = []
     try:
-        router = _cli("router", "--listen", ep)
+        router = cli("router", "--listen", ep)
         procs.append(router)
-        _wait_line(router, "stdout", "listening on")
-        final = _cli("subscribe", "evstream/*/events/clean", "--denoise", "none", "--connect", ep, "--until-end",
+        wait_line(router, "stdout", "listening on")
+        final = cli("subscribe", "evstream/*/events/clean", "--denoise", "none", "--connect", ep, "--until-end",
                      "--idle-s", "120", "--depth", "256", "--json")
         procs.append(final)
-        _wait_line(final, "stderr", "subscribed to")
-        node = _cli("subscribe", "evstream/*/events", "--republish", "--wait-subscribers", "10", "--connect", ep,
+        wait_line(final, "stderr", "subscribed to")
+        node = cli("subscribe", "evstream/*/events", "--republish", "--wait-subscribers", "10", "--connect", ep,
                     "--until-end", "--idle-s", "120", "--depth", "256", "--json")
         procs.append(node)
-        _wait_line(node, "stderr", "subscribed to")
-        pub = _cli("publish", str(recording), "--key", "evstream/cam/events", "--connect", ep, "--speed",
+        wait_line(node, "stderr", "subscribed to")
+        pub = cli("publish", str(recording), "--key", "evstream/cam/events", "--connect", ep, "--speed",
                    str(load_hz / rate_hz), "--wait-subscribers", "10", "--packet-us", "5000", "--json")
         procs.append(pub)
         outs = [json.loads(p.communicate(timeout=300)[0].strip().splitlines()[-1]) for p in (pub, node, final)]

@@ -13,15 +13,11 @@ counts the time other processes hold the core (a window's kernel measured 0.3 ms
 
 from __future__ import annotations
 
-import time
-
-import numpy as np
-
 from evstream.pipeline import build
 from evstream.testing import split
 
 from .bench_framing import tiled
-from .common import peak_alloc_bytes, report
+from .common import best_cpu_s, peak_alloc_bytes, report, tonic_events
 
 WINDOW_US = 10_000
 TAU_US = 20_000
@@ -35,10 +31,7 @@ def tonic_cases(stream):
         import tonic.transforms as T
     except Exception as e:  # not installed (a benchmark-only extra), or broken
         return {}, f"tonic not importable ({type(e).__name__}: {e}); pip install -e '.[bench]'"
-    g = stream.geometry
-    ev = np.empty(len(stream), np.dtype([("x", "<i8"), ("y", "<i8"), ("t", "<i8"), ("p", "<i8")]))
-    ev["x"], ev["y"], ev["t"], ev["p"] = stream.x, stream.y, stream.t, stream.p
-    size = (g.width, g.height, 2)
+    ev, size = tonic_events(stream)
     n_windows = int((stream.t[-1] - stream.t[0]) // WINDOW_US) + 1
     return {
         "timesurface": lambda: T.ToTimesurface(sensor_size=size, dt=WINDOW_US, tau=TAU_US)(ev),
@@ -63,14 +56,7 @@ def run(rounds: int = 5) -> None:
     peers, why_not = tonic_cases(stream)
     for name, fn in peers.items():
         cases[f"tonic {name} (whole recording)"] = fn
-    best = dict.fromkeys(cases, float("inf"))
-    for fn in cases.values():  # warm-up: numba compiles
-        fn()
-    for _ in range(rounds):
-        for name, fn in cases.items():
-            t0 = time.process_time()  # CPU time: on a shared machine, time spent preempted is not ours
-            fn()
-            best[name] = min(best[name], time.process_time() - t0)
+    best = best_cpu_s(cases, rounds)
     for name in cases:
         extra = {}
         kind = name.split()[0]

@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
-
 from evstream.pipeline import build
 from evstream.testing import split
 
 from .bench_framing import tiled
-from .common import report
+from .common import best_cpu_s, report, tonic_events
 
 CHUNK = 10_000
 
@@ -47,10 +45,7 @@ def tonic_cases(stream):
         import tonic.transforms as T
     except Exception as e:
         return {}, f"tonic not importable ({type(e).__name__}: {e}); pip install -e '.[bench]'"
-    g = stream.geometry
-    ev = np.empty(len(stream), np.dtype([("x", "<i8"), ("y", "<i8"), ("t", "<i8"), ("p", "<i8")]))
-    ev["x"], ev["y"], ev["t"], ev["p"] = stream.x, stream.y, stream.t, stream.p
-    size = (g.width, g.height, 2)
+    ev, size = tonic_events(stream)
     t0, t1 = int(stream.t[0]), int(stream.t[-1])
     return {
         "crop 200x150": lambda: T.CenterCrop(sensor_size=size, size=(200, 150))(ev),
@@ -79,14 +74,7 @@ def run(rounds: int = 5) -> None:
     peers, why_not = tonic_cases(stream)
     for name, fn in peers.items():
         cases[f"tonic {name} (whole recording)"] = fn
-    best = dict.fromkeys(cases, float("inf"))
-    for fn in cases.values():
-        fn()
-    for _ in range(rounds):
-        for name, fn in cases.items():
-            t0 = time.process_time()  # CPU time: on a shared machine, time spent preempted is not ours
-            fn()
-            best[name] = min(best[name], time.process_time() - t0)
+    best = best_cpu_s(cases, rounds)
     for name in cases:
         peer = f"tonic {name} (whole recording)"
         extra = {"vs_tonic": f"{best[peer] / best[name]:.1f}x faster"} if peer in best else {}

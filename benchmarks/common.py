@@ -1,11 +1,20 @@
-"""Shared measuring helpers: events per second (best of several runs) and peak memory."""
+"""Shared measuring helpers: events per second (best of several runs), peak memory, the peer tool's
+event layout, and `evstream` commands run as processes."""
 
 from __future__ import annotations
 
 import resource
+import socket
+import subprocess
+import sys
 import time
 import tracemalloc
 from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def events_per_s(fn: Callable[[], object], n_events: int, repeat: int = 5, warmup: int = 1) -> float:
@@ -48,3 +57,49 @@ def noisy_scene(name: str, geometry, duration_us: int):
 def report(name: str, rate_hz: float, **extra) -> None:
     more = "  ".join(f"{k}={v}" for k, v in extra.items())
     print(f"{name:<48} {rate_hz / 1e6:9.1f} M events/s  {more}", flush=True)
+
+
+def best_cpu_s(cases: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
+    """Each case's best CPU time over `rounds` interleaved rounds, after one warm-up run each (numba compiles).
+    CPU time: on a shared machine, time spent preempted is not ours."""
+    best = dict.fromkeys(cases, float("inf"))
+    for fn in cases.values():
+        fn()
+    for _ in range(rounds):
+        for name, fn in cases.items():
+            t0 = time.process_time()
+            fn()
+            best[name] = min(best[name], time.process_time() - t0)
+    return best
+
+
+def tonic_events(stream) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """`stream` as tonic takes it: a structured x, y, t, p array, and its sensor size (width, height, 2)."""
+    ev = np.empty(len(stream), np.dtype([("x", "<i8"), ("y", "<i8"), ("t", "<i8"), ("p", "<i8")]))
+    ev["x"], ev["y"], ev["t"], ev["p"] = stream.x, stream.y, stream.t, stream.p
+    return ev, (stream.geometry.width, stream.geometry.height, 2)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def cli(*args: str, **kw) -> subprocess.Popen:
+    """`evstream ARGS` as a process of this interpreter, its stdout and stderr piped as text."""
+    return subprocess.Popen([sys.executable, "-m", "evstream.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+def wait_line(p: subprocess.Popen, stream: str, text: str, timeout_s: float = 60) -> None:
+    """Read `p`'s `stream` ("stdout" or "stderr") until a line holds `text`."""
+    deadline = time.monotonic() + timeout_s
+    pipe = getattr(p, stream)
+    while time.monotonic() < deadline:
+        line = pipe.readline()
+        if text in line:
+            return
+        if not line and p.poll() is not None:
+            raise RuntimeError(f"process exited before {text!r}: {pipe.read()}")
+    raise RuntimeError(f"no {text!r} within {timeout_s} s")
