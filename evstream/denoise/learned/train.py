@@ -171,28 +171,24 @@ def _fit(S: Samples, kind: str, hidden: int, seed: int) -> Model:
                  meta={"kind": kind, "hidden": hidden if kind == "mlp" else 0})
 
 
-def _signal_quantile_levels(model: Model, S: Samples) -> np.ndarray:
-    """Per (recording, condition) signal scores' thresholds for KEEP_GRID, as rows."""
+def _signal_scores(model: Model, S: Samples):
+    """The model's scores of the signal events of each (recording, condition) with at least 50 of them."""
     score = model.score(S.X)
-    rows = []
     for g in np.unique(S.group):
         for c in np.unique(S.cond):
             sel = (S.group == g) & (S.cond == c) & (S.y == 1)
             if sel.sum() >= 50:
-                rows.append(np.quantile(score[sel], 1 - KEEP_GRID))
-    return np.array(rows)
+                yield score[sel]
+
+
+def _fold_levels(model: Model, S: Samples, keeps: np.ndarray) -> np.ndarray:
+    """Per (recording, condition) signal scores' thresholds keeping `keeps` of the signal, as rows."""
+    return np.array([np.quantile(s, 1 - np.asarray(keeps)) for s in _signal_scores(model, S)])
 
 
 def _keep_at(model: Model, S: Samples, thresholds: np.ndarray) -> np.ndarray:
     """Mean over (recording, condition) of the signal kept at each threshold."""
-    score = model.score(S.X)
-    out = []
-    for g in np.unique(S.group):
-        for c in np.unique(S.cond):
-            sel = (S.group == g) & (S.cond == c) & (S.y == 1)
-            if sel.sum() >= 50:
-                out.append((score[sel][:, None] >= thresholds[None, :]).mean(axis=0))
-    return np.mean(out, axis=0)
+    return np.mean([(s[:, None] >= thresholds[None, :]).mean(axis=0) for s in _signal_scores(model, S)], axis=0)
 
 
 def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model) -> tuple[np.ndarray, dict]:
@@ -201,7 +197,7 @@ def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model) -> tu
     With one recording: the training quantiles themselves. With more: for each recording, a model fitted
     on the others gives the signal kept on it at each of that model's own training thresholds; the
     training level l(k) whose held-out keep averages k is then applied to `final`'s training scores."""
-    own_levels = np.median(_signal_quantile_levels(final, S), axis=0)
+    own_levels = np.median(_fold_levels(final, S, KEEP_GRID), axis=0)
     groups = np.unique(S.group)
     if len(groups) < 2:
         return own_levels, {"calibration": "training quantiles (one recording)"}
@@ -223,17 +219,6 @@ def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model) -> tu
     return final_thr, info
 
 
-def _fold_levels(model: Model, S: Samples, keeps: np.ndarray) -> np.ndarray:
-    score = model.score(S.X)
-    rows = []
-    for g in np.unique(S.group):
-        for c in np.unique(S.cond):
-            sel = (S.group == g) & (S.cond == c) & (S.y == 1)
-            if sel.sum() >= 50:
-                rows.append(np.quantile(score[sel], 1 - np.asarray(keeps)))
-    return np.array(rows)
-
-
 def auc(score: np.ndarray, y: np.ndarray) -> float:
     from ...metrics import roc_auc
 
@@ -247,7 +232,7 @@ def fit(S: Samples, kind: str = "logistic", hidden: int = 16, keep: float = 0.85
     if calibrate_folds:
         thr, info = calibrate(S, kind, hidden, seed, model)
     else:
-        thr, info = np.median(_signal_quantile_levels(model, S), axis=0), {"calibration": "training quantiles"}
+        thr, info = np.median(_fold_levels(model, S, KEEP_GRID), axis=0), {"calibration": "training quantiles"}
     model.threshold_grid = np.asarray(thr, np.float32).astype(np.float64)
     model.meta.update({"keep": keep, "feature_version": FEATURE_VERSION, "features": list(FEATURES), **info,
                        "training_auc": round(auc(model.score(S.X), S.y), 4)})
