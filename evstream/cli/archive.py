@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..framing import options as framer_options
 from ..pipeline import build, paced
-from .batch import add_batch_flags, many, run_batch
+from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
     STORED_CLASSES_NOTE,
     Progress,
@@ -102,9 +102,7 @@ def archive_file(source: str, out: str, **flags) -> dict:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("archive", help="clean a recording into an MCAP archive (ROS 2, Foxglove, Rerun open it)")
-    p.add_argument("source", nargs="+", metavar="SOURCE",
-                   help="a recording; or several, folders and globs (then OUT is a folder: evstream.batch)")
-    p.add_argument("out", metavar="OUT.mcap|FOLDER")
+    add_sources_and_out(p, "OUT.mcap|FOLDER")
     add_source_flags(p)
     add_pipeline_flags(p)
     p.add_argument("--keep-noise", action="store_true",

@@ -17,6 +17,13 @@ from .common import Progress, UsageError
 NOT_FORWARDED = {"source", "out", "jobs", "scheduler", "force", "command", "func", "debug"}
 
 
+def add_sources_and_out(p, out_metavar: str) -> None:
+    """The positionals of a command with a many-recordings form: SOURCE... then OUT (a file or a folder)."""
+    p.add_argument("source", nargs="+", metavar="SOURCE",
+                   help="a recording; or several, folders and globs (then OUT is a folder: evstream.batch)")
+    p.add_argument("out", metavar=out_metavar)
+
+
 def add_batch_flags(p) -> None:
     g = p.add_argument_group("many recordings (SOURCE... OUT/FOLDER)")
     g.add_argument("--jobs", "-j", type=int, metavar="N",

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from .. import api
 from ..safe_write import AtomicOutput
-from .batch import add_batch_flags, many, run_batch
+from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
     Progress,
     UsageError,
@@ -128,9 +128,7 @@ def add_info_parser(sub) -> None:
 
 def add_convert_parser(sub) -> None:
     p = sub.add_parser("convert", help="convert a recording: OUT.npz (native), OUT.raw (EVT3), OUT.h5")
-    p.add_argument("source", nargs="+", metavar="SOURCE",
-                   help="a recording; or several, folders and globs (then OUT is a folder: evstream.batch)")
-    p.add_argument("out", metavar="OUT|FOLDER")
+    add_sources_and_out(p, "OUT|FOLDER")
     add_source_flags(p)
     p.add_argument("--to", choices=["npz", "raw", "h5"], default="npz",
                    help="many recordings: the output format (default npz; one file: OUT's extension)")
