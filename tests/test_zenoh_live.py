@@ -40,6 +40,21 @@ def _events(path):
             np.concatenate([c.y for c in chunks]), np.concatenate([c.p for c in chunks]), src.geometry)
 
 
+def _numbered_packets(ev, count: int) -> list[bytes]:
+    """`count` EventPackets of 1000 of the events `ev` (as `_events` gives them) each, seq 0..count-1."""
+    t, x, y, p, g = ev
+    return [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
+                                    width=g.width, height=g.height, seq=k))
+            for k, i in enumerate(range(0, 1000 * count, 1000))]
+
+
+def _end_stream(session, pub) -> None:
+    """Let what was put arrive, mark the end of the camera's stream (a delete) and let that arrive too."""
+    drain(session)
+    pub.delete()
+    drain(session)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -222,9 +237,8 @@ def test_garbage_payloads_are_counted_and_skipped_then_ctrl_c_stops_cleanly(proc
     procs.router(port)
     sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--max-packet-bytes", "100000",
                            "--archive", str(tmp_path / "g_{camera}.mcap"))
-    t, x, y, p, g = _events(TURNTABLE)
-    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
-                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 3000, 1000))]
+    t, x, y, p, g = ev = _events(TURNTABLE)
+    good = _numbered_packets(ev, 3)
     outside = encode_packet(to_packet(t[3000:3010], x[3000:3010], y[3000:3010], p[3000:3010], width=8, height=8))
     rng = np.random.default_rng(0)
     session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
@@ -270,9 +284,7 @@ def test_until_end_stops_for_a_camera_that_sent_only_malformed_packets(procs):
         pub = matched_publisher(session, "evstream/junk/events")
         pub.put(b"not a packet")
         pub.put(b"\x00\x01\x00\x00" + b"\xff" * 64)
-        drain(session)
-        pub.delete()  # the end of this camera's stream
-        drain(session)
+        _end_stream(session, pub)
         out = procs.result(sub, timeout_s=30)  # was: still waiting when --idle-s (120 s) ran out
     finally:
         session.close()
@@ -536,9 +548,8 @@ def test_a_rejected_packet_leaves_the_sequence_alone_and_upper_case_evt3_is_refu
     procs.router(port)
     sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--archive",
                            str(tmp_path / "seq.mcap"), "--until-end", "--idle-s", "40")
-    t, x, y, p, g = _events(TURNTABLE)
-    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
-                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 3000, 1000))]
+    t, x, y, p, g = ev = _events(TURNTABLE)
+    good = _numbered_packets(ev, 3)
     hostile = encode_packet(to_packet(t[3000:3010], x[3000:3010], y[3000:3010], p[3000:3010], width=8, height=8,
                                       seq=2**64 - 1))
     upper = encode_packet(dataclasses.replace(decode_packet(good[1]), encoding="EVT3", seq=1))
@@ -550,9 +561,7 @@ def test_a_rejected_packet_leaves_the_sequence_alone_and_upper_case_evt3_is_refu
         pub.put(upper, attachment=encode_attachment(1, time.time_ns()))
         pub.put(good[1], attachment=encode_attachment(1, time.time_ns()))
         pub.put(good[2], attachment=encode_attachment(2, time.time_ns()))
-        drain(session)
-        pub.delete()
-        drain(session)
+        _end_stream(session, pub)
         out = procs.result(sub, timeout_s=30)
     finally:
         session.close()
@@ -580,9 +589,7 @@ def test_a_huge_put_is_dropped_by_the_transport_before_it_fills_a_router_or_subs
     procs.wait_for(router, "listening on")
     sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--max-packet-bytes", "1000000",
                            "--until-end", "--idle-s", "60")
-    t, x, y, p, g = _events(TURNTABLE)
-    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
-                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 5000, 1000))]
+    good = _numbered_packets(_events(TURNTABLE), 5)
     session = open_session(connect=[f"tcp/127.0.0.1:{port}"], max_packet_bytes=1 << 30)
     try:
         pub = matched_publisher(session, "evstream/cam1/events")
@@ -598,9 +605,7 @@ def test_a_huge_put_is_dropped_by_the_transport_before_it_fills_a_router_or_subs
         time.sleep(1.0)
         grown_router, grown_sub = _peak_rss_mb(router.pid) - base_router, _peak_rss_mb(sub.pid) - base_sub
         pub.put(good[4], attachment=encode_attachment(4, time.time_ns()))  # the link is still up
-        drain(session)
-        pub.delete()
-        drain(session)
+        _end_stream(session, pub)
         out = procs.result(sub, timeout_s=30)
     finally:
         session.close()
@@ -689,9 +694,7 @@ def test_packets_lost_just_before_the_end_mark_are_counted(procs):
     port = free_port()
     procs.router(port)
     sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--until-end", "--idle-s", "30")
-    t, x, y, p, g = _events(TURNTABLE)
-    good = [encode_packet(to_packet(t[i:i + 1000], x[i:i + 1000], y[i:i + 1000], p[i:i + 1000],
-                                    width=g.width, height=g.height, seq=k)) for k, i in enumerate(range(0, 2000, 1000))]
+    good = _numbered_packets(_events(TURNTABLE), 2)
     session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
     try:
         pub = matched_publisher(session, "evstream/cam1/events")
