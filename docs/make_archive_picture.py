@@ -24,7 +24,7 @@ def main() -> int:
     from evstream.sinks.colours import CLASS_COLOURS
     from evstream.sinks.rerun_viewer import serve_file
 
-    from evstream.chromium import CHROMIUM, HeadlessChromium, colour_counts
+    from evstream.chromium import CHROMIUM, HeadlessChromium, colour_counts, wait_until
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "docs" / "archive-rerun.png"))
@@ -44,12 +44,10 @@ def main() -> int:
             session = browser.open(url, args.timeout_s)
             png = d / "shot.png"
             colours = {c.name: rgb for c, rgb in CLASS_COLOURS.items()}
-            deadline = time.monotonic() + args.timeout_s
-            while min(colour_counts(browser.screenshot(session, png), colours, VIEW_3D).values()) < 100:
-                if time.monotonic() > deadline:
-                    print(f"the 3D view did not show the three classes in {args.timeout_s:g} s", file=sys.stderr)
-                    return 1
-                time.sleep(2.0)
+            if not wait_until(browser, session, png, lambda png: min(colour_counts(png, colours, VIEW_3D).values())
+                              >= 100, args.timeout_s):
+                print(f"the 3D view did not show the three classes in {args.timeout_s:g} s", file=sys.stderr)
+                return 1
             time.sleep(8.0)  # the viewer's start-up notices fade out
             browser.screenshot(session, png)
             Path(args.out).write_bytes(png.read_bytes())

@@ -28,7 +28,7 @@ def main() -> int:
     from evstream.sinks.colours import CLASS_COLOURS
     from evstream.sinks.rerun_viewer import free_port
 
-    from evstream.chromium import CHROMIUM, HeadlessChromium, colour_counts, page_viewer_times
+    from evstream.chromium import CHROMIUM, HeadlessChromium, colour_counts, page_viewer_times, wait_until
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "docs" / "live-restart.png"))
@@ -69,11 +69,10 @@ def main() -> int:
                     print("the viewer did not reach the second stream in time", file=sys.stderr)
                     return 1
                 time.sleep(2.0)
-            while min(colour_counts(browser.screenshot(session, png), colours, VIEW_3D).values()) < 100:
-                if time.monotonic() > deadline:
-                    print("the 3D view did not show the three classes in time", file=sys.stderr)
-                    return 1
-                time.sleep(2.0)
+            if not wait_until(browser, session, png, lambda png: min(colour_counts(png, colours, VIEW_3D).values())
+                              >= 100, deadline - time.monotonic()):
+                print("the 3D view did not show the three classes in time", file=sys.stderr)
+                return 1
             Path(args.out).write_bytes(png.read_bytes())
             print(f"wrote {args.out} (the subscriber {'saw' if restarted else 'did NOT see'} the restart)")
             return 0 if restarted else 1
