@@ -10,6 +10,18 @@ from .common import UsageError, not_the_input
 from .evaluate import read_recordings
 
 
+def _fractions(text: str) -> tuple[float, ...]:
+    import argparse
+
+    try:
+        fracs = tuple(float(f) for f in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected fractions like 0.3,0.1, got {text!r}") from None
+    if not all(0 < f < 1 for f in fracs):
+        raise argparse.ArgumentTypeError(f"fractions must be in (0, 1), got {text!r}")
+    return fracs
+
+
 def cmd_train(args) -> int:
     from ..denoise.learned import train
 
@@ -33,7 +45,7 @@ def cmd_train(args) -> int:
     say = (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr)) if sys.stderr.isatty() else None
     t0 = time.perf_counter()
     model = train.train(recordings, kind=args.kind, hidden=args.hidden, keep=args.keep, seed=args.seed,
-                        per_stream=args.events_per_stream, sources=sources, progress=say)
+                        per_stream=args.events_per_stream, sources=sources, thin=args.thin, progress=say)
     if say:
         print(file=sys.stderr)
     model.save(out)
@@ -58,5 +70,8 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise and sampling seed")
     p.add_argument("--events-per-stream", type=int, default=20_000,
                    help="warm events sampled per recording and noise condition")
+    p.add_argument("--thin", type=_fractions, default=(), metavar="F,F...",
+                   help="also train on each recording's signal thinned at random to these fractions "
+                        "(e.g. 0.3,0.1,0.03: sparser scenes; docs/learned.md)")
     p.add_argument("--min-duration-s", type=float, default=0.0, help="skip shorter recordings")
     p.set_defaults(func=cmd_train)

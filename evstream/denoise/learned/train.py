@@ -64,31 +64,50 @@ def features_of(noisy: EventChunk) -> np.ndarray:
 
 def samples(recordings: dict[str, EventChunk], conditions: Iterable[Condition] = TRAIN_CONDITIONS,
             seeds: Iterable[int] = (SEED_BASE,), per_stream: int = 20_000, rng_seed: int = 0,
-            progress: Callable[[str], None] | None = None) -> Samples:
-    """Labelled feature rows of every recording × condition × seed, `per_stream` warm events each."""
+            progress: Callable[[str], None] | None = None, thin: Iterable[float] = ()) -> Samples:
+    """Labelled feature rows of every recording × condition × seed, `per_stream` warm events each.
+
+    `thin`: each recording also enters with its signal thinned at random to each of these fractions
+    (same recording group, so calibration folds keep a recording's copies together): sparser edges,
+    as a low-resolution or less sensitive sensor sees them, so that the model does not learn that
+    signal always comes in dense edges (docs/learned.md: the shipped model's transfer)."""
     rng = np.random.default_rng(rng_seed)
+    thin_rng = np.random.default_rng([rng_seed, 1])  # apart from `rng`: no thinning, the same samples
     conditions = list(conditions)
+    thin = [float(f) for f in thin]
+    if any(not 0 < f < 1 for f in thin):
+        raise ValueError(f"thin fractions must be in (0, 1), got {thin}")
     Xs, ys, gs, cs = [], [], [], []
     names = list(recordings)
     for gi, (name, events) in enumerate(recordings.items()):
-        signal, _ = as_signal(events)
-        if len(signal) < 100:
+        full, _ = as_signal(events)
+        if len(full) < 100:
             raise ValueError(f"{name}: fewer than 100 signal events, nothing to learn from")
-        for ci, cond in enumerate(conditions):
-            for seed in seeds:
-                if progress:
-                    progress(f"{name} {cond.name} seed {seed}")
-                noisy = inject(signal, cond.spec(), seed=seed, t_start_us=int(signal.t[0]),
-                               t_stop_us=int(signal.t[-1]) + 1)
-                X = features_of(noisy)
-                t0, t1 = int(noisy.t[0]), int(noisy.t[-1])
-                warm = np.flatnonzero(noisy.t >= t0 + min(HISTORY_US, int(0.3 * (t1 - t0))))
-                pick = np.sort(rng.choice(warm, min(per_stream, len(warm)), replace=False))
-                Xs.append(X[pick])
-                ys.append((noisy.label[pick] == NoiseClass.SIGNAL).astype(np.float64))
-                gs.append(np.full(len(pick), gi))
-                cs.append(np.full(len(pick), ci))
+        for ti, frac in enumerate([1.0, *thin]):
+            signal = full if frac == 1.0 else full[thin_rng.random(len(full)) < frac]
+            if len(signal) < 100:
+                continue
+            _stream_samples(name, signal, conditions, seeds, per_stream, rng, progress, gi,
+                            ti * len(conditions), frac, Xs, ys, gs, cs)
     return Samples(np.concatenate(Xs), np.concatenate(ys), np.concatenate(gs), np.concatenate(cs), names)
+
+
+def _stream_samples(name, signal, conditions, seeds, per_stream, rng, progress, gi, c0, frac, Xs, ys, gs, cs):
+    """Feature rows of one signal stream under every condition and seed, appended to the lists."""
+    for ci, cond in enumerate(conditions):
+        for seed in seeds:
+            if progress:
+                progress(f"{name}{'' if frac == 1.0 else f' thinned to {frac:g}'} {cond.name} seed {seed}")
+            noisy = inject(signal, cond.spec(), seed=seed, t_start_us=int(signal.t[0]),
+                           t_stop_us=int(signal.t[-1]) + 1)
+            X = features_of(noisy)
+            t0, t1 = int(noisy.t[0]), int(noisy.t[-1])
+            warm = np.flatnonzero(noisy.t >= t0 + min(HISTORY_US, int(0.3 * (t1 - t0))))
+            pick = np.sort(rng.choice(warm, min(per_stream, len(warm)), replace=False))
+            Xs.append(X[pick])
+            ys.append((noisy.label[pick] == NoiseClass.SIGNAL).astype(np.float64))
+            gs.append(np.full(len(pick), gi))
+            cs.append(np.full(len(pick), c0 + ci))
 
 
 # -- fitting ------------------------------------------------------------------------------------------
@@ -249,12 +268,14 @@ def sha256(path) -> str:
 
 def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: int = 16, keep: float = 0.85,
           seed: int = 0, per_stream: int = 20_000, sources: dict[str, str] | None = None,
-          conditions: Iterable[Condition] = TRAIN_CONDITIONS,
+          conditions: Iterable[Condition] = TRAIN_CONDITIONS, thin: Iterable[float] = (),
           progress: Callable[[str], None] | None = None) -> Model:
-    """Inject noise into `recordings`, compute features, fit and calibrate; provenance in `meta`."""
+    """Inject noise into `recordings` (and their signal thinned to `thin`, see `samples`), compute
+    features, fit and calibrate; provenance in `meta`."""
     conditions = list(conditions)
+    thin = [float(f) for f in thin]
     S = samples(recordings, conditions, seeds=(SEED_BASE + seed,), per_stream=per_stream, rng_seed=seed,
-                progress=progress)
+                progress=progress, thin=thin)
     if progress:
         progress(f"fitting {kind} on {len(S.y):,} events")
     model = fit(S, kind, hidden, keep, seed)
@@ -265,6 +286,7 @@ def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: 
                                            if n in sources else {})} for n in recordings],
         "noise_conditions": [c.name for c in conditions],
         "noise_seed": SEED_BASE + seed,
+        **({"signal_thinned_to": thin} if thin else {}),
         "events_per_stream": per_stream,
         "training_events": int(len(S.y)),
         "signal_share": round(float(S.y.mean()), 4),
