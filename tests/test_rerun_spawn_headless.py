@@ -9,13 +9,15 @@ import sys
 from pathlib import Path
 
 import pytest
-from evstream.sinks.rerun_viewer import NO_DISPLAY, free_port
+from evstream.sinks.rerun_viewer import DEFAULT_GRPC_PORT, NO_DISPLAY, free_port, is_listening
 
 ROOT = Path(__file__).resolve().parents[1]
 BAR = ROOT / "recordings" / "bar.npz"
 
 
 def run(env_extra: dict, tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    if is_listening("127.0.0.1", DEFAULT_GRPC_PORT):  # seen when another checkout's viewer was up
+        pytest.skip(f"a viewer already listens on 127.0.0.1:{DEFAULT_GRPC_PORT}: --spawn logs into it, as it should")
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     env.update(env_extra)
     return subprocess.run([sys.executable, "-m", "evstream.cli", *args], env=env, cwd=tmp_path, capture_output=True,
