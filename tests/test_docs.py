@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from conftest import REAL_DATA, real_data_skip_reason
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -207,6 +208,11 @@ def default_router_port():
 
 def run_block(block: Block, tmp_path: Path):
     work = mirror(tmp_path / "repo")
+    if "../shared/data/real" in block.text:  # the real recordings beside the mirror, as beside the checkout
+        if not REAL_DATA.is_dir():
+            pytest.skip(real_data_skip_reason())
+        (tmp_path / "shared" / "data").mkdir(parents=True)
+        (tmp_path / "shared" / "data" / "real").symlink_to(REAL_DATA)
     logs = tmp_path / "logs"
     logs.mkdir()
     env = environment()
