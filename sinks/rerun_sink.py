@@ -125,17 +125,33 @@ def blueprint(geometry: Geometry, slab_ms: float = 100.0, framer: str | None = N
 
 
 # -- pieces that keep state across chunks --------------------------------------------------------
-class PointBudget:
-    """Token bucket over event time: at most `rate_hz` points per second of events (plus a saved-up
-    burst of at most `burst_s` worth); picks evenly spaced events within a chunk. `dropped` counts
-    what it left out."""
+class _TokenBucket:
+    """What the two point budgets share: `rate_hz` tokens a second, a burst of `burst_s` worth, and the
+    spending of them on evenly spaced points; `dropped` counts what was left out."""
 
-    def __init__(self, rate_hz: float | None, burst_s: float = 0.1):
+    def __init__(self, rate_hz: float | None, burst_s: float):
         self.rate_hz = rate_hz
         self.capacity = None if rate_hz is None else max(1.0, rate_hz * burst_s)
         self.tokens = self.capacity
-        self.t_last: int | None = None
+        self.t_last = None
         self.dropped = 0
+
+    def _spend(self, n: int) -> np.ndarray | None:
+        """Spend whole tokens on `n` points: None when all fit, else the indices of evenly spaced ones."""
+        k = min(n, int(self.tokens))
+        self.tokens -= k
+        if k == n:
+            return None
+        self.dropped += n - k
+        return (np.arange(k, dtype=np.int64) * n) // k
+
+
+class PointBudget(_TokenBucket):
+    """Token bucket over event time: at most `rate_hz` points per second of events (plus a saved-up
+    burst of at most `burst_s` worth); picks evenly spaced events within a chunk."""
+
+    def __init__(self, rate_hz: float | None, burst_s: float = 0.1):
+        super().__init__(rate_hz, burst_s)
 
     def select(self, t: np.ndarray) -> np.ndarray | None:
         """Indices of the events to draw, or None for all of them."""
@@ -146,25 +162,16 @@ class PointBudget:
         # saved-up tokens are capped; this chunk's own span of event time is not
         self.tokens = min(self.capacity, self.tokens) + self.rate_hz * (int(t[-1]) - t_prev) * 1e-6
         self.t_last = int(t[-1])
-        k = min(n, int(self.tokens))
-        self.tokens -= k
-        if k == n:
-            return None
-        self.dropped += n - k
-        return (np.arange(k, dtype=np.int64) * n) // k
+        return self._spend(n)
 
 
-class WallBudget:
+class WallBudget(_TokenBucket):
     """Token bucket over wall-clock time: at most `rate_hz` points per second of wall-clock time (plus a
-    saved-up burst of `burst_s` worth), evenly spaced within a chunk; `dropped` counts what it left out."""
+    saved-up burst of `burst_s` worth), evenly spaced within a chunk."""
 
     def __init__(self, rate_hz: float | None, burst_s: float = 0.2, clock=time.monotonic):
-        self.rate_hz = rate_hz
-        self.capacity = None if rate_hz is None else max(1.0, rate_hz * burst_s)
-        self.tokens = self.capacity
+        super().__init__(rate_hz, burst_s)
         self.clock = clock
-        self.t_last: float | None = None
-        self.dropped = 0
 
     def select(self, n: int) -> np.ndarray | None:
         """Indices of the `n` points to draw, or None for all of them."""
@@ -174,12 +181,7 @@ class WallBudget:
         if self.t_last is not None:
             self.tokens = min(self.capacity, self.tokens + self.rate_hz * (now - self.t_last))
         self.t_last = now
-        k = min(n, int(self.tokens))
-        self.tokens -= k
-        if k == n:
-            return None
-        self.dropped += n - k
-        return (np.arange(k, dtype=np.int64) * n) // k
+        return self._spend(n)
 
 
 class StatsBins:
