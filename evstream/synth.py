@@ -9,7 +9,6 @@ All events are labelled SIGNAL; `evstream.noise` adds labelled noise.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -31,14 +30,20 @@ class SensorModel:
     step_us: int = 100  # sampling step of the intensity field
 
 
+NEVER = 2**62  # a wake-up step no simulation reaches
+MARGIN = 1e-9  # log units kept between a "cannot cross" bound and a threshold: far above rounding (~1e-15)
+
+
 @njit(cache=True, nogil=True)
-def _cross(a, b, i, j, ref, thr_on, thr_off, last_t, t_prev, span, refractory_us, ex, ey,
-           out_t, out_x, out_y, out_p, n):
+def _cross(a, b, i, j, ref, thr_on, thr_off, last_t, t_prev, span, refractory_us, ex, ey, out, n, cap):
     """The threshold crossings of pixel [i, j] as its log intensity goes from `a` to `b` over `span` µs
-    from `t_prev`, written as events at (ex, ey) from index `n`; returns the new count. Updates the
-    pixel's reference level and last event time. Called only where `_crosses` says so: a call passes
-    arrays, whose reference counts cost more than the test."""
-    cap = len(out_t)
+    from `t_prev`, written as events at (ex, ey) from index `n` up to `cap`; returns the new count. Updates
+    the pixel's reference level and last event time. Each event also gets a sort key (with full-sensor
+    state): time, then the earlier step (an event on a step boundary), then row-major pixel order — the
+    order the reference emits in, so a run may visit pixels in any order. Called only where a pixel
+    crosses: a call passes arrays, whose reference counts cost more than the test."""
+    out_t, out_x, out_y, out_p, out_k = out
+    h, w = ref.shape
     r = ref[i, j]
     while n < cap:
         if b - r >= thr_on[i, j]:
@@ -59,6 +64,7 @@ def _cross(a, b, i, j, ref, thr_on, thr_off, last_t, t_prev, span, refractory_us
             out_x[n] = ex
             out_y[n] = ey
             out_p[n] = pol
+            out_k[n] = (2 * tc + (1 if tc == t_prev else 0)) * (h * w) + ey * w + ex
             n += 1
     ref[i, j] = r
     return n
@@ -71,25 +77,32 @@ def _crosses(b, r, on, off):
 
 
 @njit(cache=True, nogil=True)
-def _emit(log_prev, log_now, ref, thr_on, thr_off, last_t, t_prev, t_now, refractory_us, x0, y0,
-          out_t, out_x, out_y, out_p):
-    """Threshold crossings of every pixel of a region (origin x0, y0) between two samples; returns the
-    number of events written. `ref` and `last_t` (per-pixel state) are updated in place."""
+def _emit(log_prev, log_now, ref, thr_on, thr_off, last_t, t_prev, t_now, refractory_us, x0, y0, out):
+    """Threshold crossings of every pixel of a region (origin x0, y0) between two samples, in row order;
+    returns the number of events written. `ref` and `last_t` (per-pixel state) are updated in place."""
     h, w = log_now.shape
     n = 0
     for y in range(h):
         for x in range(w):
             if _crosses(log_now[y, x], ref[y, x], thr_on[y, x], thr_off[y, x]):
                 n = _cross(log_prev[y, x], log_now[y, x], y, x, ref, thr_on, thr_off, last_t, t_prev, t_now - t_prev,
-                           refractory_us, x0 + x, y0 + y, out_t, out_x, out_y, out_p, n)
+                           refractory_us, x0 + x, y0 + y, out, n, len(out[0]))
     return n
 
 
 Field = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 Region = Callable[[float, float], tuple[slice, slice]]
-# a compiled step: (t_prev_us, t_now_us, rows, cols, px, refractory_us, out) -> events written into out
-Stepper = Callable[[int, int, slice, slice, tuple, int, tuple], int]
+# a compiled run: run(s0, s1, out, n) simulates steps s0..s1-1 (step s samples t = s * step_us) writing events
+# into `out` from index n, and returns (events in out, the first step not simulated: s1 unless out filled up)
+Run = Callable[[int, int, tuple, int], tuple[int, int]]
+# makes a scene's run over the simulation's per-pixel state (level, ref, thr_on, thr_off, last_t)
+Runner = Callable[[tuple, "SensorModel"], Run]
 Progress = Callable[[int, int], None]  # (µs of scene simulated, µs in all)
+
+
+def _buffers(cap):
+    return (np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.uint8),
+            np.empty(cap, np.int64))
 
 
 def simulate(
@@ -100,15 +113,16 @@ def simulate(
     model: SensorModel = SensorModel(),
     region: Region | None = None,
     chunk_us: int = 50_000,
-    stepper: Stepper | None = None,
+    runner: Runner | None = None,
     on_progress: Progress | None = None,
 ):
     """Yield SIGNAL-labelled chunks of the events a DVS would emit watching `log_intensity(t_s, X, Y)`.
 
     `region(t0_s, t1_s) -> (rows, cols)` bounds where the field may change between two samples, so a
-    small moving object costs its own area, not the sensor's. `stepper`, when given, is a compiled step:
-    the same field as `log_intensity` (to ~1e-15: the same events) and the crossings in one pass over the
-    region; `log_intensity` then only gives the start. `on_progress(done_us, total_us)` is called per chunk.
+    small moving object costs its own area, not the sensor's. `runner`, when given, makes a compiled run:
+    the same field as `log_intensity` (to ~1e-15: the same events) over whole chunks of steps, visiting only
+    the pixels that may cross; `log_intensity` then only gives the start. `on_progress(done_us, total_us)`
+    is called per chunk.
     """
     rng = np.random.default_rng(seed)
     shape = (geometry.height, geometry.width)
@@ -118,41 +132,50 @@ def simulate(
     level = log_intensity(0.0, xx, yy)
     ref = level + rng.uniform(-0.5, 0.5, shape) * thr_on  # pixels start at random points of their cycle
     last_t = np.full(shape, -(10**9), np.int64)
-    cap = geometry.n_pixels * 8
-    out = (np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16),
-           np.empty(cap, np.uint8))
+    step_cap = geometry.n_pixels * 8  # events one step may write (what the reference's buffer holds)
+    out = _buffers(step_cap * (2 if runner else 1))
     px = (level, ref, thr_on, thr_off, last_t)
-    parts = []
-    chunk_start = 0
+    run = runner(px, model) if runner else None
     full = (slice(0, geometry.height), slice(0, geometry.width))
-    for t_now in range(model.step_us, duration_us + 1, model.step_us):
-        t_prev = t_now - model.step_us
-        rows, cols = region(t_prev * 1e-6, t_now * 1e-6) if region else full
-        if stepper is None:
-            now = log_intensity(t_now * 1e-6, xx[rows, cols], yy[rows, cols])
-            n = _emit(level[rows, cols], now, ref[rows, cols], thr_on[rows, cols], thr_off[rows, cols],
-                      last_t[rows, cols], t_prev, t_now, model.refractory_us,
-                      cols.start, rows.start, *out)
-            level[rows, cols] = now
+    n_steps = duration_us // model.step_us
+    s, chunk_start = 1, 0
+    while s <= n_steps:
+        # the chunk ends at the first step at least chunk_us after its start, or at the last step
+        last = min(max(s, -(-(chunk_start + chunk_us) // model.step_us)), n_steps)
+        parts = []
+        if run is None:
+            for step in range(s, last + 1):
+                t_now = step * model.step_us
+                t_prev = t_now - model.step_us
+                rows, cols = region(t_prev * 1e-6, t_now * 1e-6) if region else full
+                now = log_intensity(t_now * 1e-6, xx[rows, cols], yy[rows, cols])
+                n = _emit(level[rows, cols], now, ref[rows, cols], thr_on[rows, cols], thr_off[rows, cols],
+                          last_t[rows, cols], t_prev, t_now, model.refractory_us, cols.start, rows.start, out)
+                level[rows, cols] = now
+                if n:
+                    order = np.argsort(out[0][:n], kind="stable")
+                    parts.append(tuple(a[:n][order] for a in out[:4]))
         else:
-            n = stepper(t_prev, t_now, rows, cols, px, model.refractory_us, out)
-        if n:
-            order = np.argsort(out[0][:n], kind="stable")
-            parts.append(tuple(a[:n][order] for a in out))
-        if t_now - chunk_start >= chunk_us or t_now + model.step_us > duration_us:
-            if on_progress is not None:
-                on_progress(t_now, duration_us)
-            yield _chunk(parts, geometry, t_end=t_now)
-            parts, chunk_start = [], t_now
+            step = s
+            while step <= last:
+                n, step = run(step, last + 1, out, 0)
+                if n:
+                    parts.append(tuple(a[:n].copy() for a in out))
+            if parts:
+                keys = np.concatenate([p[4] for p in parts])
+                order = np.argsort(keys, kind="stable")
+                parts = [tuple(np.concatenate([p[i] for p in parts])[order] for i in range(4))]
+        t_end = last * model.step_us
+        if on_progress is not None:
+            on_progress(t_end, duration_us)
+        yield _chunk(parts, geometry, t_end=t_end)
+        s, chunk_start = last + 1, t_end
 
 
 def _box(geometry: Geometry, x0, x1, y0, y1, margin=4) -> tuple[slice, slice]:
     """Row and column slices of a box, widened by a margin and clipped to the sensor."""
-    c0 = min(max(math.floor(x0) - margin, 0), geometry.width)
-    c1 = min(max(math.ceil(x1) + margin + 1, 0), geometry.width)
-    r0 = min(max(math.floor(y0) - margin, 0), geometry.height)
-    r1 = min(max(math.ceil(y1) + margin + 1, 0), geometry.height)
-    return slice(r0, max(r0, r1)), slice(c0, max(c0, c1))
+    r0, r1, c0, c1 = (int(v) for v in _boxes(geometry, x0, x1, y0, y1, margin))
+    return slice(r0, r1), slice(c0, c1)
 
 
 def _chunk(parts, geometry, t_end):
@@ -165,11 +188,15 @@ def _chunk(parts, geometry, t_end):
 
 
 # -- scenes ----------------------------------------------------------------------------------------
-# Each scene is a numpy field (the reference, and the start of every simulation) and a compiled step that
-# samples the same field over a region and makes the crossings in one pass. The steps skip the work that
-# cannot change a value (tanh(x) is exactly ±1 for |x| >= SATURATED), turn sin(a - b) into
-# sin a cos b - cos a sin b with sin a, cos a kept per pixel, and 0.5 + 0.5 tanh(x) into 1 / (1 + e^-2x):
-# the same numbers to ~1e-15, so the same events (tests/test_synth_noise.py compares them).
+# Each scene is a numpy field (the reference, and the start of every simulation) and a compiled run that
+# samples the same field and makes the crossings over whole chunks of steps. The runs compute the field
+# exactly as before (the same numbers to ~1e-15 as numpy, so the same events: tests/test_synth_noise.py):
+# tanh(x) is exactly ±1 for |x| >= SATURATED, sin(a - b) = sin a cos b - cos a sin b with sin a, cos a kept
+# per pixel, 0.5 + 0.5 tanh(x) = 1 / (1 + e^-2x). They skip, exactly, what cannot make an event: a pixel
+# whose value cannot reach either threshold before the scene has moved enough is not looked at again
+# until then (turntable); a column whose value lies between every row's thresholds is passed over (bar);
+# a value is only logged when it is near a threshold (ball). Where a crossing needs the value of the
+# previous step, that value is computed again from that step's parameters: the same bits.
 SATURATED = 20.0  # tanh(20) = 1 - 8e-18 rounds to 1.0 in float64
 
 
@@ -189,88 +216,253 @@ def _logistic(x):
 
 
 @njit(cache=True, nogil=True)
-def _turntable_step(cos_phase, sin_phase, k, r, sin_kth, cos_kth, outside, inside, dark, light,
-                    rows0, rows1, cols0, cols1, px, t_prev, t_now, refractory_us, out):
-    """The turntable over a region: sin(k(θ - phase)) from per-pixel sin kθ, cos kθ; `dark`/`light` are
-    the pixel's values where the pattern is saturated (most of the disk), so only the edges cost a log."""
-    level, ref, thr_on, thr_off, last_t = px
-    out_t, out_x, out_y, out_p = out
-    span = t_now - t_prev
-    n = 0
-    for y in range(rows0, rows1):
-        for x in range(cols0, cols1):
-            if inside[y, x] == 0.0:  # off the disk
-                b = dark[y, x]
-            else:
-                edge = 2.0 * r[y, x] * (sin_kth[y, x] * cos_phase - cos_kth[y, x] * sin_phase) / k
-                if edge >= SATURATED:
-                    b = light[y, x]
-                elif edge <= -SATURATED:
-                    b = dark[y, x]
-                else:
-                    b = np.log(outside[y, x] + inside[y, x] * (0.25 + 0.5 * _logistic(2.0 * edge)) + 0.05)
-            if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
-                n = _cross(level[y, x], b, y, x, ref, thr_on, thr_off, last_t, t_prev, span, refractory_us, x, y,
-                           out_t, out_x, out_y, out_p, n)
-            level[y, x] = b
-    return n
-
-
-@njit(cache=True, nogil=True)
-def _ball_step(cx, cy, radius, cos_spin, sin_spin, background, log_background,
-               rows0, rows1, cols0, cols1, px, t_prev, t_now, refractory_us, out):
-    """The ball over a region; sin(3θ + spin) from (dx + i dy)^3 / r^3, the texture as it is off the ball."""
-    level, ref, thr_on, thr_off, last_t = px
-    out_t, out_x, out_y, out_p = out
-    span = t_now - t_prev
-    n = 0
-    for y in range(rows0, rows1):
-        for x in range(cols0, cols1):
-            dx, dy = x - cx, y - cy
-            r = np.sqrt(dx * dx + dy * dy)
-            if 2.0 * (radius - r) <= -SATURATED:  # off the ball: the static texture
-                b = log_background[y, x]
-            else:
-                if r > 0.0:
-                    c, s = dx / r, dy / r
-                else:
-                    c, s = 1.0, 0.0  # arctan2(0, 0) = 0
-                sin3, cos3 = s * (3.0 * c * c - s * s), c * (c * c - 3.0 * s * s)
-                patches = _logistic(10.0 * (sin3 * cos_spin + cos3 * sin_spin) * np.sin(r / radius * 4.0))
-                edge = 2.0 * (radius - r)
-                inside = 1.0 if edge >= SATURATED else _logistic(2.0 * edge)
-                b = np.log(background[y, x] * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05)
-            if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
-                n = _cross(level[y, x], b, y, x, ref, thr_on, thr_off, last_t, t_prev, span, refractory_us, x, y,
-                           out_t, out_x, out_y, out_p, n)
-            level[y, x] = b
-    return n
-
-
-@njit(cache=True, nogil=True)
-def _bar_step(centre, width_px, rows0, rows1, cols0, cols1, px, t_prev, t_now, refractory_us, out):
-    """The bar over a region: it depends on x alone, so one log per column."""
-    level, ref, thr_on, thr_off, last_t = px
-    out_t, out_x, out_y, out_p = out
-    span = t_now - t_prev
-    values = np.empty(cols1 - cols0)
-    for x in range(cols0, cols1):
-        edge = 2.0 * (width_px / 2 - abs(x - centre))
-        if edge >= SATURATED:
-            values[x - cols0] = np.log(0.7 - 0.45 + 0.05)
-        elif edge <= -SATURATED:
-            values[x - cols0] = np.log(0.7 + 0.05)
+def _wake(travel, i, s, s0, need):
+    """The first step after step s (index i of `travel`, the scene's cumulative motion from step s0 - 1) at
+    which the scene may have moved by `need`; the run's end (s0 - 1 + len(travel)) if none before."""
+    if not need > 0.0:
+        return s + 1
+    target = travel[i] + need
+    lo, hi = i + 1, len(travel)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if travel[mid] >= target:
+            hi = mid
         else:
-            values[x - cols0] = np.log(0.7 - 0.45 * _logistic(2.0 * edge) + 0.05)
-    n = 0
-    for y in range(rows0, rows1):  # row by row, as the reference emits (equal times keep that order)
-        for x in range(cols0, cols1):
-            b = values[x - cols0]
-            if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
-                n = _cross(level[y, x], b, y, x, ref, thr_on, thr_off, last_t, t_prev, span, refractory_us, x, y,
-                           out_t, out_x, out_y, out_p, n)
-            level[y, x] = b
-    return n
+            lo = mid + 1
+    return s0 - 1 + lo
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tt_edge(r, sin_kth, cos_kth, cos_phase, sin_phase, k):
+    """~ twice the signed distance (px) of a turntable pixel to the nearest sector edge."""
+    return 2.0 * r * (sin_kth * cos_phase - cos_kth * sin_phase) / k
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tt_value(edge, outside, inside, dark, light):
+    """A turntable pixel's log intensity: `dark`/`light` where the pattern is saturated (most of the disk),
+    so only the edges cost a log."""
+    if inside == 0.0:  # off the disk
+        return dark
+    if edge >= SATURATED:
+        return light
+    if edge <= -SATURATED:
+        return dark
+    return np.log(outside + inside * (0.25 + 0.5 * _logistic(2.0 * edge)) + 0.05)
+
+
+@njit(cache=True, nogil=True)
+def _tt_safe(ref, on, off, outside, inside, dark, light):
+    """(lo, hi): while a turntable pixel's edge value stays strictly between them, it cannot cross either
+    threshold. Its value rises with the edge value from `dark` to `light` through a logistic, so each
+    threshold is one edge value, found by inverting with margins (and clipped where the logistic is too
+    flat to invert to 1e-6): ±inf where a threshold is out of reach, lo >= hi where nothing is safe."""
+    top = ref + on - MARGIN  # below it, no ON event
+    if light <= top - 1e-12:
+        hi = np.inf
+    else:
+        sig = ((np.exp(top) - 0.05 - outside) / inside - 0.25) / 0.5 if inside >= 1e-3 else 0.0
+        hi = 0.5 * np.log(min(sig, 1.0 - 1e-4) / (1.0 - min(sig, 1.0 - 1e-4))) - 1e-6 if sig > 1e-4 else -np.inf
+    bottom = ref - off + MARGIN  # above it, no OFF event
+    if dark >= bottom + 1e-12:
+        lo = -np.inf
+    else:
+        sig = ((np.exp(bottom) - 0.05 - outside) / inside - 0.25) / 0.5 if inside >= 1e-3 else 1.0
+        lo = 0.5 * np.log(max(sig, 1e-4) / (1.0 - max(sig, 1e-4))) + 1e-6 if sig < 1.0 - 1e-4 else np.inf
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _turntable_init(static, px, safe, box):
+    """Every pixel of the box: its safe edge range, and a look at step 1."""
+    r, sin_kth, cos_kth, outside, inside, dark, light = static
+    level, ref, thr_on, thr_off, last_t = px
+    lo, hi, wake = safe
+    for y in range(box[0], box[1]):
+        for x in range(box[2], box[3]):
+            lo[y, x], hi[y, x] = _tt_safe(ref[y, x], thr_on[y, x], thr_off[y, x], outside[y, x], inside[y, x],
+                                          dark[y, x], light[y, x])
+            wake[y, x] = 1
+
+
+@njit(cache=True, nogil=True)
+def _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, box, step_us, refractory_us, step_cap,
+                   out, n):
+    """Steps s0..s1-1 of the turntable over its box; per-step arrays start at step s0 - 1. A pixel is
+    looked at on its wake-up step only: its edge value moves by at most 2 r |Δ(k phase)| (`travel`), so
+    until it has travelled its distance to the safe range's ends, it cannot cross."""
+    r, sin_kth, cos_kth, outside, inside, dark, light = static
+    level, ref, thr_on, thr_off, last_t = px
+    lo, hi, wake = safe
+    cap = len(out[0])
+    for s in range(s0, s1):
+        if n + step_cap > cap:
+            return n, s
+        i = s - s0 + 1
+        t_prev = (s - 1) * step_us
+        limit = n + step_cap
+        for y in range(box[0], box[1]):
+            for x in range(box[2], box[3]):
+                if wake[y, x] > s:
+                    continue
+                e = _tt_edge(r[y, x], sin_kth[y, x], cos_kth[y, x], cos_ph[i], sin_ph[i], k)
+                if not lo[y, x] < e < hi[y, x]:
+                    b = _tt_value(e, outside[y, x], inside[y, x], dark[y, x], light[y, x])
+                    if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
+                        if s == 1:  # the start is the numpy field
+                            a = level[y, x]
+                        else:
+                            before = _tt_edge(r[y, x], sin_kth[y, x], cos_kth[y, x], cos_ph[i - 1], sin_ph[i - 1], k)
+                            a = _tt_value(before, outside[y, x], inside[y, x], dark[y, x], light[y, x])
+                        n = _cross(a, b, y, x, ref, thr_on, thr_off, last_t, t_prev, step_us, refractory_us, x, y,
+                                   out, n, limit)
+                        lo[y, x], hi[y, x] = _tt_safe(ref[y, x], thr_on[y, x], thr_off[y, x], outside[y, x],
+                                                      inside[y, x], dark[y, x], light[y, x])
+                low, high = lo[y, x], hi[y, x]
+                if low == -np.inf and high == np.inf:  # both thresholds out of reach: never again
+                    wake[y, x] = NEVER
+                elif r[y, x] == 0.0:  # the centre does not change
+                    wake[y, x] = NEVER if low < e < high else s + 1
+                else:
+                    d = min(high - e, e - low)
+                    wake[y, x] = _wake(travel, i, s, s0, (d * (1.0 - 1e-9) - 1e-7) * k / (2.0 * r[y, x]))
+    return n, s1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ball_v(x, y, cx, cy, radius, cos_spin, sin_spin, background):
+    """(off the ball, the argument of the log): sin(3θ + spin) from (dx + i dy)^3 / r^3; off the ball the
+    value is the static texture's."""
+    dx, dy = x - cx, y - cy
+    r = np.sqrt(dx * dx + dy * dy)
+    if 2.0 * (radius - r) <= -SATURATED:
+        return True, 0.0
+    if r > 0.0:
+        c, s = dx / r, dy / r
+    else:
+        c, s = 1.0, 0.0  # arctan2(0, 0) = 0
+    sin3, cos3 = s * (3.0 * c * c - s * s), c * (c * c - 3.0 * s * s)
+    patches = _logistic(10.0 * (sin3 * cos_spin + cos3 * sin_spin) * np.sin(r / radius * 4.0))
+    edge = 2.0 * (radius - r)
+    inside = 1.0 if edge >= SATURATED else _logistic(2.0 * edge)
+    return False, background * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ball_previous(v, log_background, start):
+    """A ball pixel's log intensity at its previous step from what was kept: the argument of its log (> 0),
+    -1 (off the ball: the texture), -2 (never sampled: the numpy start)."""
+    if v > 0.0:
+        return np.log(v)
+    return log_background if v == -1.0 else start
+
+
+@njit(cache=True, nogil=True)
+def _ball_safe(y, x, ref, thr_on, thr_off, log_background, state):
+    """A ball pixel's thresholds as bounds on the argument of its log, and whether the texture is safe."""
+    v_prev, v_lo, v_hi, texture_safe = state
+    v_lo[y, x] = np.exp(ref[y, x] - thr_off[y, x] + MARGIN)
+    v_hi[y, x] = np.exp(ref[y, x] + thr_on[y, x] - MARGIN)
+    texture_safe[y, x] = not _crosses(log_background[y, x], ref[y, x], thr_on[y, x], thr_off[y, x])
+
+
+@njit(cache=True, nogil=True)
+def _ball_init(px, log_background, state):
+    level, ref, thr_on, thr_off, last_t = px
+    h, w = ref.shape
+    for y in range(h):
+        for x in range(w):
+            _ball_safe(y, x, ref, thr_on, thr_off, log_background, state)
+
+
+@njit(cache=True, nogil=True)
+def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, radius, background, log_background, px, state, step_us,
+              refractory_us, step_cap, out, n):
+    """Steps s0..s1-1 of the ball over each step's box (per-step arrays start at step s0). The log is taken
+    only where the value is near a threshold, the texture off the ball only checked when it could cross."""
+    level, ref, thr_on, thr_off, last_t = px
+    v_prev, v_lo, v_hi, texture_safe = state
+    cap = len(out[0])
+    for s in range(s0, s1):
+        if n + step_cap > cap:
+            return n, s
+        i = s - s0
+        t_prev = (s - 1) * step_us
+        limit = n + step_cap
+        for y in range(boxes[i, 0], boxes[i, 1]):
+            for x in range(boxes[i, 2], boxes[i, 3]):
+                off, v = _ball_v(x, y, cx[i], cy[i], radius, cos_spin[i], sin_spin[i], background[y, x])
+                if off:
+                    if not texture_safe[y, x]:
+                        b = log_background[y, x]
+                        if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
+                            a = _ball_previous(v_prev[y, x], log_background[y, x], level[y, x])
+                            n = _cross(a, b, y, x, ref, thr_on, thr_off, last_t, t_prev, step_us, refractory_us, x, y,
+                                       out, n, limit)
+                            _ball_safe(y, x, ref, thr_on, thr_off, log_background, state)
+                    v_prev[y, x] = -1.0
+                    continue
+                if not v_lo[y, x] < v < v_hi[y, x]:
+                    b = np.log(v)
+                    if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
+                        a = _ball_previous(v_prev[y, x], log_background[y, x], level[y, x])
+                        n = _cross(a, b, y, x, ref, thr_on, thr_off, last_t, t_prev, step_us, refractory_us, x, y,
+                                   out, n, limit)
+                        _ball_safe(y, x, ref, thr_on, thr_off, log_background, state)
+                v_prev[y, x] = v
+    return n, s1
+
+
+@njit(cache=True, nogil=True)
+def _bar_run(s0, s1, centres, boxes, width_px, px, state, step_us, refractory_us, step_cap, out, n):
+    """Steps s0..s1-1 of the bar (per-step arrays start at step s0). It depends on x alone: one log per
+    column, and a column is passed over while its value lies strictly between every row's thresholds."""
+    level, ref, thr_on, thr_off, last_t = px
+    value, col_lo, col_hi = state  # value: at the column's last step in the region (NaN: never sampled)
+    cap = len(out[0])
+    for s in range(s0, s1):
+        if n + step_cap > cap:
+            return n, s
+        i = s - s0
+        t_prev = (s - 1) * step_us
+        limit = n + step_cap
+        centre = centres[i]
+        for x in range(boxes[i, 2], boxes[i, 3]):
+            edge = 2.0 * (width_px / 2 - abs(x - centre))
+            if edge >= SATURATED:
+                b = np.log(0.7 - 0.45 + 0.05)
+            elif edge <= -SATURATED:
+                b = np.log(0.7 + 0.05)
+            else:
+                b = np.log(0.7 - 0.45 * _logistic(2.0 * edge) + 0.05)
+            before = value[x]
+            value[x] = b
+            if col_lo[x] < b < col_hi[x]:
+                continue
+            low, high = -np.inf, np.inf
+            for y in range(boxes[i, 0], boxes[i, 1]):
+                if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
+                    a = level[y, x] if np.isnan(before) else before
+                    n = _cross(a, b, y, x, ref, thr_on, thr_off, last_t, t_prev, step_us, refractory_us, x, y,
+                               out, n, limit)
+                low = max(low, ref[y, x] - thr_off[y, x])
+                high = min(high, ref[y, x] + thr_on[y, x])
+            col_lo[x], col_hi[x] = low + MARGIN, high - MARGIN
+    return n, s1
+
+
+def _step_times(s0, s1, step_us):
+    """Seconds of steps s0..s1-1, as the reference computes them (µs * 1e-6)."""
+    return np.arange(s0, s1, dtype=np.int64) * step_us * 1e-6
+
+
+def _boxes(geometry: Geometry, x0, x1, y0, y1, margin=4) -> np.ndarray:
+    """Boxes (rows0, rows1, cols0, cols1) per step from arrays of extents, as `_box` makes them."""
+    c0 = np.clip(np.floor(x0) - margin, 0, geometry.width).astype(np.int64)
+    c1 = np.clip(np.ceil(x1) + margin + 1, 0, geometry.width).astype(np.int64)
+    r0 = np.clip(np.floor(y0) - margin, 0, geometry.height).astype(np.int64)
+    r1 = np.clip(np.ceil(y1) + margin + 1, 0, geometry.height).astype(np.int64)
+    return np.stack([r0, np.maximum(r0, r1), c0, np.maximum(c0, c1)], axis=-1)
 
 
 def turntable(geometry: Geometry, *, duration_s: float, sectors: int = 4, rev_hz=(3.0, 0.3),
@@ -295,24 +487,32 @@ def turntable(geometry: Geometry, *, duration_s: float, sectors: int = 4, rev_hz
         return _log(0.45 * (1 - inside) + inside * (0.25 + 0.5 * pattern))
 
     box = _box(geometry, cx - radius, cx + radius, cy - radius, cy + radius)
-    static = {}
 
-    def stepper(t_prev, t_now, rows, cols, px, refractory_us, out):
-        if not static:  # per pixel, once: what does not turn
-            yy, xx = np.mgrid[0 : geometry.height, 0 : geometry.width].astype(np.float64)
-            dx, dy = xx - cx, yy - cy
-            r = np.hypot(dx, dy)
-            kth = k * np.arctan2(dy, dx)
-            inside = _soft(radius - r)
-            outside = 0.45 * (1 - inside)
-            static.update(r=r, sin_kth=np.sin(kth), cos_kth=np.cos(kth), outside=outside, inside=inside,
-                          dark=_log(outside + inside * 0.25), light=_log(outside + inside * 0.75))
-        kphase = k * phase_at(t_now * 1e-6)
-        return _turntable_step(np.cos(kphase), np.sin(kphase), k, static["r"], static["sin_kth"], static["cos_kth"],
-                               static["outside"], static["inside"], static["dark"], static["light"],
-                               rows.start, rows.stop, cols.start, cols.stop, px, t_prev, t_now, refractory_us, out)
+    def runner(px, model):
+        yy, xx = np.mgrid[0 : geometry.height, 0 : geometry.width].astype(np.float64)
+        dx, dy = xx - cx, yy - cy
+        r = np.hypot(dx, dy)
+        kth = k * np.arctan2(dy, dx)
+        inside = _soft(radius - r)
+        outside = 0.45 * (1 - inside)
+        static = (r, np.sin(kth), np.cos(kth), outside, inside, _log(outside + inside * 0.25),
+                  _log(outside + inside * 0.75))
+        shape = r.shape
+        safe = (np.full(shape, np.inf), np.full(shape, -np.inf), np.full(shape, NEVER, np.int64))
+        limits = np.array([box[0].start, box[0].stop, box[1].start, box[1].stop], np.int64)
+        _turntable_init(static, px, safe, limits)
 
-    return field, lambda t0, t1: box, stepper
+        def run(s0, s1, out, n):
+            kphase = k * phase_at(_step_times(s0 - 1, s1, model.step_us))
+            cos_ph = np.array([np.cos(float(v)) for v in kphase])  # one by one, as before: the same bits
+            sin_ph = np.array([np.sin(float(v)) for v in kphase])
+            travel = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(kphase)))))
+            return _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, limits, model.step_us,
+                                  model.refractory_us, 8 * geometry.n_pixels, out, n)
+
+        return run
+
+    return field, lambda t0, t1: box, runner
 
 
 def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), radius_frac: float = 0.09):
@@ -338,24 +538,36 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
         inside = _soft(radius - r)
         return _log(texture(xx, yy) * (1 - inside) + inside * (0.25 + 0.6 * patches))
 
-    def region(t0, t1):
+    def boxes(t0, t1):
         (ax, ay), (bx, by) = centre(t0), centre(t1)
-        return _box(geometry, min(ax, bx) - radius, max(ax, bx) + radius,
-                    min(ay, by) - radius, max(ay, by) + radius)
+        return _boxes(geometry, np.minimum(ax, bx) - radius, np.maximum(ax, bx) + radius,
+                      np.minimum(ay, by) - radius, np.maximum(ay, by) + radius)
 
-    static = {}
+    def region(t0, t1):
+        r0, r1, c0, c1 = (int(v) for v in boxes(t0, t1))
+        return slice(r0, r1), slice(c0, c1)
 
-    def stepper(t_prev, t_now, rows, cols, px, refractory_us, out):
-        if not static:
-            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-            background = texture(xx, yy)
-            static.update(background=background, log_background=_log(background))
-        cx, cy = centre(t_now * 1e-6)
-        spin = cx / radius
-        return _ball_step(cx, cy, radius, np.cos(spin), np.sin(spin), static["background"], static["log_background"],
-                          rows.start, rows.stop, cols.start, cols.stop, px, t_prev, t_now, refractory_us, out)
+    def runner(px, model):
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        background = texture(xx, yy)
+        log_background = _log(background)
+        shape = background.shape
+        state = (np.full(shape, -2.0), np.empty(shape), np.empty(shape), np.empty(shape, np.bool_))
+        _ball_init(px, log_background, state)
 
-    return field, region, stepper
+        def run(s0, s1, out, n):
+            t = _step_times(s0, s1, model.step_us)
+            cx, cy = centre(t)
+            spin = cx / radius
+            cos_spin = np.array([np.cos(float(v)) for v in spin])  # one by one, as before: the same bits
+            sin_spin = np.array([np.sin(float(v)) for v in spin])
+            return _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes(t - model.step_us * 1e-6, t), radius,
+                             background, log_background, px, state, model.step_us, model.refractory_us,
+                             8 * geometry.n_pixels, out, n)
+
+        return run
+
+    return field, region, runner
 
 
 def bar(geometry: Geometry, *, duration_s: float, speed_px_s: float = 150.0, width_px: float = 10.0):
@@ -369,17 +581,28 @@ def bar(geometry: Geometry, *, duration_s: float, speed_px_s: float = 150.0, wid
         d = width_px / 2 - np.abs(xx - centre(t))
         return _log(0.7 - 0.45 * _soft(d))
 
-    def region(t0, t1):
+    def boxes(t0, t1):
         a, b = centre(t0), centre(t1)
-        if b < a:  # wrapped: the bar left on the right and re-entered on the left
-            return _box(geometry, 0, geometry.width, 0, geometry.height)
-        return _box(geometry, a - width_px, b + width_px, 0, geometry.height)
+        wrapped = b < a  # the bar left on the right and re-entered on the left: all of it
+        return _boxes(geometry, np.where(wrapped, 0, a - width_px), np.where(wrapped, geometry.width, b + width_px),
+                      np.zeros_like(a), np.full_like(a, geometry.height))
 
-    def stepper(t_prev, t_now, rows, cols, px, refractory_us, out):
-        return _bar_step(centre(t_now * 1e-6), width_px, rows.start, rows.stop, cols.start, cols.stop, px,
-                         t_prev, t_now, refractory_us, out)
+    def region(t0, t1):
+        r0, r1, c0, c1 = (int(v) for v in boxes(t0, t1))
+        return slice(r0, r1), slice(c0, c1)
 
-    return field, region, stepper
+    def runner(px, model):
+        shape = px[0].shape
+        state = (np.full(shape[1], np.nan), np.full(shape[1], np.inf), np.full(shape[1], -np.inf))
+
+        def run(s0, s1, out, n):
+            t = _step_times(s0, s1, model.step_us)
+            return _bar_run(s0, s1, centre(t), boxes(t - model.step_us * 1e-6, t), width_px, px, state,
+                            model.step_us, model.refractory_us, 8 * geometry.n_pixels, out, n)
+
+        return run
+
+    return field, region, runner
 
 
 SCENES = {"turntable": turntable, "ball": ball, "bar": bar}
@@ -395,7 +618,7 @@ def scene(name: str, geometry: Geometry = DEFAULT_GEOMETRY, duration_us: int = 1
         raise ValueError(f"unknown scene {name!r}; known: {', '.join(SCENES)}")
     if duration_us < model.step_us:
         raise ValueError(f"duration_us must be at least one step ({model.step_us} µs), got {duration_us}")
-    field, region, stepper = SCENES[name](geometry, duration_s=duration_us * 1e-6, **params)
+    field, region, runner = SCENES[name](geometry, duration_s=duration_us * 1e-6, **params)
     chunks = simulate(field, geometry, duration_us, seed, model, region,
-                      stepper=stepper if compiled else None, on_progress=on_progress)
+                      runner=runner if compiled else None, on_progress=on_progress)
     return concat(list(chunks), geometry)
