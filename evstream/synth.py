@@ -9,6 +9,7 @@ All events are labelled SIGNAL; `evstream.noise` adds labelled noise.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -31,6 +32,8 @@ class SensorModel:
 
 
 NEVER = 2**62  # a wake-up step no simulation reaches
+PATCHES_MIN, PATCHES_MAX = 1.0 / (1.0 + math.exp(10.0)), 1.0 / (1.0 + math.exp(-10.0))  # |pattern| <= 10
+EDGE_IN, EDGE_OFF = math.exp(-40.0), math.exp(40.0)  # e^-2edge where the ball's edge value saturates
 MARGIN = 1e-9  # log units kept between a "cannot cross" bound and a threshold: far above rounding (~1e-15)
 
 
@@ -218,11 +221,16 @@ def _logistic(x):
 @njit(cache=True, nogil=True)
 def _wake(travel, i, s, s0, need):
     """The first step after step s (index i of `travel`, the scene's cumulative motion from step s0 - 1) at
-    which the scene may have moved by `need`; the run's end (s0 - 1 + len(travel)) if none before."""
+    which the scene may have moved by `need`; the run's end (s0 - 1 + len(travel)) if none before. Galloping
+    search from i: most answers are near."""
     if not need > 0.0:
         return s + 1
     target = travel[i] + need
-    lo, hi = i + 1, len(travel)
+    lo, step = i + 1, 1
+    while lo + step - 1 < len(travel) and travel[lo + step - 1] < target:
+        lo += step
+        step *= 2
+    hi = min(lo + step - 1, len(travel))
     while lo < hi:
         mid = (lo + hi) // 2
         if travel[mid] >= target:
@@ -330,86 +338,129 @@ def _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, box, ste
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _ball_v(x, y, cx, cy, radius, cos_spin, sin_spin, background):
-    """(off the ball, the argument of the log): sin(3θ + spin) from (dx + i dy)^3 / r^3; off the ball the
-    value is the static texture's."""
+def _ball_value(x, y, cx, cy, radius, cos_spin, sin_spin, background):
+    """(off the ball, the argument of the log, e^-pattern, e^-2edge) of a ball pixel: sin(3θ + spin) from
+    (dx + i dy)^3 / r^3. Off the ball its value is the static texture's (log_background), the rest is not
+    computed; where the edge is saturated, e^-2edge is its largest value there."""
     dx, dy = x - cx, y - cy
     r = np.sqrt(dx * dx + dy * dy)
     if 2.0 * (radius - r) <= -SATURATED:
-        return True, 0.0
+        return True, 0.0, 1.0, EDGE_OFF
     if r > 0.0:
         c, s = dx / r, dy / r
     else:
         c, s = 1.0, 0.0  # arctan2(0, 0) = 0
     sin3, cos3 = s * (3.0 * c * c - s * s), c * (c * c - 3.0 * s * s)
-    patches = _logistic(10.0 * (sin3 * cos_spin + cos3 * sin_spin) * np.sin(r / radius * 4.0))
+    e_pattern = np.exp(-(10.0 * (sin3 * cos_spin + cos3 * sin_spin) * np.sin(r / radius * 4.0)))
+    patches = 1.0 / (1.0 + e_pattern)
     edge = 2.0 * (radius - r)
-    inside = 1.0 if edge >= SATURATED else _logistic(2.0 * edge)
-    return False, background * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05
+    if edge >= SATURATED:
+        inside, e_edge = 1.0, EDGE_IN
+    else:
+        e_edge = np.exp(-(2.0 * edge))
+        inside = 1.0 / (1.0 + e_edge)
+    return False, background * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05, e_pattern, e_edge
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _ball_previous(v, log_background, start):
-    """A ball pixel's log intensity at its previous step from what was kept: the argument of its log (> 0),
-    -1 (off the ball: the texture), -2 (never sampled: the numpy start)."""
-    if v > 0.0:
-        return np.log(v)
-    return log_background if v == -1.0 else start
+def _ball_log(off, v, log_background):
+    return log_background if off else np.log(v)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ball_stays(off, e_pattern, e_edge, background, grow_pattern, grow_edge, v_lo, v_hi):
+    """Whether a ball pixel's log argument stays strictly inside (v_lo, v_hi) while its pattern argument
+    moves by at most log(grow_pattern) and twice its edge value by at most log(grow_edge). The argument,
+    bg + 0.05 + inside * (0.25 + 0.6 patches - bg), is bilinear in (inside, patches), each a logistic of
+    its argument, so its range is at the corners of their ranges."""
+    if off:  # the pattern argument is not known: any
+        p_lo, p_hi = PATCHES_MIN, PATCHES_MAX
+    else:
+        p_lo = max(1.0 / (1.0 + e_pattern * grow_pattern), PATCHES_MIN)
+        p_hi = min(1.0 / (1.0 + e_pattern / grow_pattern), PATCHES_MAX)
+    i_lo, i_hi = 1.0 / (1.0 + e_edge * grow_edge), 1.0 / (1.0 + e_edge / grow_edge)
+    w_lo, w_hi = 0.25 + 0.6 * p_lo - background, 0.25 + 0.6 * p_hi - background
+    c1, c2, c3, c4 = i_lo * w_lo, i_lo * w_hi, i_hi * w_lo, i_hi * w_hi
+    base = background + 0.05
+    return (base + min(min(c1, c2), min(c3, c4)) > v_lo * (1.0 + 1e-12)
+            and base + max(max(c1, c2), max(c3, c4)) < v_hi * (1.0 - 1e-12))
+
+
+REACH_PX = 0.1 * 2.0 ** np.arange(-8, 11)  # the travels a ball pixel may be given (REACH_PX[-1] = 102 px)
 
 
 @njit(cache=True, nogil=True)
-def _ball_safe(y, x, ref, thr_on, thr_off, log_background, state):
-    """A ball pixel's thresholds as bounds on the argument of its log, and whether the texture is safe."""
-    v_prev, v_lo, v_hi, texture_safe = state
-    v_lo[y, x] = np.exp(ref[y, x] - thr_off[y, x] + MARGIN)
-    v_hi[y, x] = np.exp(ref[y, x] + thr_on[y, x] - MARGIN)
-    texture_safe[y, x] = not _crosses(log_background[y, x], ref[y, x], thr_on[y, x], thr_off[y, x])
+def _ball_reach(off, e_pattern, e_edge, background, grow, k, v_lo, v_hi):
+    """The index into REACH_PX of the farthest travel of the ball this pixel stays safe for, from the last
+    answer `k`: up while it stays safe, down by two while not; -1 where none is (look again next step).
+    `grow[k]` = (e^(pattern_rate * d), e^(4 d)) for d = REACH_PX[k]: over a travel d the pattern argument
+    moves by at most pattern_rate * d (its gradient is at most 126.5 / R, the spin's share 10 / R) and
+    the edge value by 2 d."""
+    if _ball_stays(off, e_pattern, e_edge, background, grow[k, 0], grow[k, 1], v_lo, v_hi):
+        while k + 1 < len(grow) and _ball_stays(off, e_pattern, e_edge, background, grow[k + 1, 0], grow[k + 1, 1],
+                                                v_lo, v_hi):
+            k += 1
+        return k
+    k -= 2
+    while k >= 0:
+        if _ball_stays(off, e_pattern, e_edge, background, grow[k, 0], grow[k, 1], v_lo, v_hi):
+            return k
+        k -= 2
+    return -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _in_box(box, y, x):
+    return box[0] <= y < box[1] and box[2] <= x < box[3]
 
 
 @njit(cache=True, nogil=True)
-def _ball_init(px, log_background, state):
+def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, travel, radius, grow, background, log_background, px,
+              state, step_us, refractory_us, step_cap, out, n):
+    """Steps s0..s1-1 of the ball over each step's box (per-step arrays are indexed by step). A pixel is
+    looked at on its wake-up step only: until the ball has travelled the distance `_ball_fits` allows, it
+    cannot cross. Where a crossing needs the pixel's value at its previous step in a box, that step is
+    found and its value computed again."""
     level, ref, thr_on, thr_off, last_t = px
-    h, w = ref.shape
-    for y in range(h):
-        for x in range(w):
-            _ball_safe(y, x, ref, thr_on, thr_off, log_background, state)
-
-
-@njit(cache=True, nogil=True)
-def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, radius, background, log_background, px, state, step_us,
-              refractory_us, step_cap, out, n):
-    """Steps s0..s1-1 of the ball over each step's box (per-step arrays start at step s0). The log is taken
-    only where the value is near a threshold, the texture off the ball only checked when it could cross."""
-    level, ref, thr_on, thr_off, last_t = px
-    v_prev, v_lo, v_hi, texture_safe = state
+    v_prev, v_step, v_lo, v_hi, wake, reach = state
     cap = len(out[0])
     for s in range(s0, s1):
         if n + step_cap > cap:
             return n, s
-        i = s - s0
         t_prev = (s - 1) * step_us
         limit = n + step_cap
-        for y in range(boxes[i, 0], boxes[i, 1]):
-            for x in range(boxes[i, 2], boxes[i, 3]):
-                off, v = _ball_v(x, y, cx[i], cy[i], radius, cos_spin[i], sin_spin[i], background[y, x])
-                if off:
-                    if not texture_safe[y, x]:
-                        b = log_background[y, x]
-                        if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
-                            a = _ball_previous(v_prev[y, x], log_background[y, x], level[y, x])
-                            n = _cross(a, b, y, x, ref, thr_on, thr_off, last_t, t_prev, step_us, refractory_us, x, y,
-                                       out, n, limit)
-                            _ball_safe(y, x, ref, thr_on, thr_off, log_background, state)
-                    v_prev[y, x] = -1.0
+        for y in range(boxes[s, 0], boxes[s, 1]):
+            for x in range(boxes[s, 2], boxes[s, 3]):
+                if wake[y, x] > s:
                     continue
-                if not v_lo[y, x] < v < v_hi[y, x]:
-                    b = np.log(v)
-                    if _crosses(b, ref[y, x], thr_on[y, x], thr_off[y, x]):
-                        a = _ball_previous(v_prev[y, x], log_background[y, x], level[y, x])
-                        n = _cross(a, b, y, x, ref, thr_on, thr_off, last_t, t_prev, step_us, refractory_us, x, y,
-                                   out, n, limit)
-                        _ball_safe(y, x, ref, thr_on, thr_off, log_background, state)
-                v_prev[y, x] = v
+                bg = background[y, x]
+                off, v, e_pattern, e_edge = _ball_value(x, y, cx[s], cy[s], radius, cos_spin[s], sin_spin[s], bg)
+                if off:
+                    crosses = _crosses(log_background[y, x], ref[y, x], thr_on[y, x], thr_off[y, x])
+                else:
+                    crosses = not v_lo[y, x] < v < v_hi[y, x] and _crosses(np.log(v), ref[y, x], thr_on[y, x],
+                                                                             thr_off[y, x])
+                if crosses:
+                    if v_step[y, x] < 0:  # never in a box before: the numpy start
+                        a = level[y, x]
+                    else:
+                        q = s - 1
+                        while q > v_step[y, x] and not _in_box(boxes[q], y, x):
+                            q -= 1  # the pixel's last step in a box (the reference's `level`)
+                        if q == v_step[y, x]:
+                            a = log_background[y, x] if v_prev[y, x] < 0.0 else np.log(v_prev[y, x])
+                        else:
+                            o, u, _, _ = _ball_value(x, y, cx[q], cy[q], radius, cos_spin[q], sin_spin[q], bg)
+                            a = _ball_log(o, u, log_background[y, x])
+                    n = _cross(a, _ball_log(off, v, log_background[y, x]), y, x, ref, thr_on, thr_off, last_t, t_prev,
+                               step_us, refractory_us, x, y, out, n, limit)
+                    v_lo[y, x] = np.exp(ref[y, x] - thr_off[y, x] + MARGIN)
+                    v_hi[y, x] = np.exp(ref[y, x] + thr_on[y, x] - MARGIN)
+                v_prev[y, x] = -1.0 if off else v
+                v_step[y, x] = s
+                k = _ball_reach(off, e_pattern, e_edge, bg, grow, reach[y, x], v_lo[y, x], v_hi[y, x])
+                reach[y, x] = max(k, 0)
+                wake[y, x] = _wake(travel, s, s, 1, REACH_PX[k] * (1.0 - 1e-9) - 1e-9) if k >= 0 else s + 1
     return n, s1
 
 
@@ -552,18 +603,35 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
         background = texture(xx, yy)
         log_background = _log(background)
         shape = background.shape
-        state = (np.full(shape, -2.0), np.empty(shape), np.empty(shape), np.empty(shape, np.bool_))
-        _ball_init(px, log_background, state)
+        state = (np.zeros(shape), np.full(shape, -1, np.int64), np.exp(px[1] - px[3] + MARGIN),
+                 np.exp(px[1] + px[2] - MARGIN), np.zeros(shape, np.int64), np.full(shape, 8, np.int64))
+        with np.errstate(over="ignore"):  # e^big = inf: no bound, as it should be
+            grow = np.exp(np.stack([136.5 / radius * REACH_PX, 4.0 * REACH_PX], axis=1) * (1.0 + 1e-9))
+        steps = {}  # per-step parameters, indexed by step, for every step simulated so far
 
-        def run(s0, s1, out, n):
-            t = _step_times(s0, s1, model.step_us)
+        def extend(s1):  # known steps: to s1 and some way beyond, so that wake-ups can look ahead
+            known = len(steps.get("cx", ()))
+            if s1 <= known:
+                return
+            t = _step_times(known, s1 + 2_000, model.step_us)
             cx, cy = centre(t)
             spin = cx / radius
-            cos_spin = np.array([np.cos(float(v)) for v in spin])  # one by one, as before: the same bits
-            sin_spin = np.array([np.sin(float(v)) for v in spin])
-            return _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes(t - model.step_us * 1e-6, t), radius,
-                             background, log_background, px, state, model.step_us, model.refractory_us,
-                             8 * geometry.n_pixels, out, n)
+            new = {"cx": cx, "cy": cy, "cos": np.array([np.cos(float(v)) for v in spin]),  # one by one, as
+                   "sin": np.array([np.sin(float(v)) for v in spin]),  # before: the same bits
+                   "boxes": boxes(t - model.step_us * 1e-6, t)}
+            if known:
+                moved = np.hypot(np.diff(cx, prepend=steps["cx"][-1]), np.diff(cy, prepend=steps["cy"][-1]))
+                new["travel"] = steps["travel"][-1] + np.cumsum(moved)
+            else:
+                new["travel"] = np.concatenate(([0.0], np.cumsum(np.hypot(np.diff(cx), np.diff(cy)))))
+            for key, value in new.items():
+                steps[key] = np.concatenate([steps[key], value]) if key in steps else value
+
+        def run(s0, s1, out, n):
+            extend(s1)
+            return _ball_run(s0, s1, steps["cx"], steps["cy"], steps["cos"], steps["sin"], steps["boxes"],
+                             steps["travel"], radius, grow, background, log_background, px, state, model.step_us,
+                             model.refractory_us, 8 * geometry.n_pixels, out, n)
 
         return run
 

@@ -110,48 +110,121 @@ def test_emit_matches_its_plain_python_reference(seed):
     want_ref, want_last = ref.copy(), last.copy()
     want = emit_reference(prev, now, want_ref, on, off, want_last, t_prev, t_now, refr, x0, y0)
     cap = 8 * h * w
-    out = (np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.uint8))
-    n = _emit(prev, now, ref, on, off, last, t_prev, t_now, refr, x0, y0, *out)
-    assert [tuple(int(a[i]) for a in out) for i in range(n)] == want
+    out = (np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.uint8),
+           np.empty(cap, np.int64))
+    n = _emit(prev, now, ref, on, off, last, t_prev, t_now, refr, x0, y0, out)
+    assert [tuple(int(a[i]) for a in out[:4]) for i in range(n)] == want
     assert np.array_equal(ref, want_ref) and np.array_equal(last, want_last)
     assert n > 0
 
 
-@pytest.mark.parametrize("name", ["turntable", "ball", "bar"])
-def test_each_compiled_step_samples_the_reference_field(name):
-    """The compiled field agrees with the numpy one to ~1e-15 over random regions and times (thresholds
-    out of reach, so a step only stores the field in `level`)."""
+def test_wake_is_the_first_step_that_may_have_moved_enough():
+    """`_wake` (galloping search) against a plain search of the cumulative motion."""
+    from evstream.synth import _wake
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        moves = rng.exponential(1.0, int(rng.integers(1, 60))) * (rng.random() < 0.9)  # some standing still
+        travel = np.concatenate(([0.0], np.cumsum(moves)))
+        s0 = int(rng.integers(1, 1000))
+        i = int(rng.integers(0, len(travel)))
+        need = float(rng.choice([rng.uniform(-1, 0), rng.uniform(0, 2 * travel[-1] + 1), 0.0]))
+        later = [j for j in range(i + 1, len(travel)) if travel[j] >= travel[i] + need]
+        want = s0 + i if need <= 0 else s0 - 1 + (later[0] if later else len(travel))
+        assert _wake(travel, i, s0 - 1 + i, s0, need) == want
+
+
+def test_turntable_safe_edge_range_cannot_cross():
+    """Inside `_tt_safe`'s range of edge values, the pixel's value (as the run computes it) crosses neither
+    threshold; just outside a finite end, a little further, it does."""
+    from evstream.synth import _crosses, _tt_safe, _tt_value
+
+    rng = np.random.default_rng(5)
+    checked = 0
+    for _ in range(400):
+        inside = float(rng.choice([0.0, 1.0, rng.uniform(0, 1), 10 ** rng.uniform(-6, 0)]))
+        outside = 0.45 * (1 - inside)
+        dark, light = np.log(outside + inside * 0.25 + 0.05), np.log(outside + inside * 0.75 + 0.05)
+        ref = rng.uniform(dark - 0.3, light + 0.3)
+        on, off = rng.uniform(0.05, 0.4, 2)
+        lo, hi = _tt_safe(ref, on, off, outside, inside, dark, light)
+        edges = rng.uniform(max(lo, -25.0), min(hi, 25.0), 50) if lo < hi else np.zeros(0)
+        for e in edges:
+            assert not _crosses(_tt_value(e, outside, inside, dark, light), ref, on, off), (lo, hi, e)
+            checked += 1
+        for end, step in ((hi, 0.05), (lo, -0.05)):  # not needlessly small: a bit past an end, it crosses
+            if abs(end) < 4 and 1e-3 < inside:
+                assert _crosses(_tt_value(end + step, outside, inside, dark, light), ref, on, off)
+    assert checked > 5_000
+
+
+def test_ball_reach_is_safe():
+    """While the ball travels no further than `_ball_reach` allows from where a pixel was looked at, in any
+    direction (the spin following its x), the pixel's log argument stays inside its thresholds' bounds."""
     from evstream import synth
 
-    rng = np.random.default_rng(len(name))
-    g = Geometry(int(rng.integers(40, 120)), int(rng.integers(30, 90)))
-    field, region, stepper = synth.SCENES[name](g, duration_s=0.5)
-    yy, xx = np.mgrid[0 : g.height, 0 : g.width].astype(np.float64)
-    shape = (g.height, g.width)
-    far = np.full(shape, 1e9)
-    px = (field(0.0, xx, yy), np.zeros(shape), far, far, np.zeros(shape, np.int64))
-    out = (np.empty(8, np.int64), np.empty(8, np.uint16), np.empty(8, np.uint16), np.empty(8, np.uint8))
-    for t_us in sorted(rng.integers(100, 500_000, 12)):
-        r0, c0 = int(rng.integers(0, g.height - 1)), int(rng.integers(0, g.width - 1))
-        rows = slice(r0, int(rng.integers(r0 + 1, g.height + 1)))
-        cols = slice(c0, int(rng.integers(c0 + 1, g.width + 1)))
-        assert stepper(int(t_us) - 100, int(t_us), rows, cols, px, 100, out) == 0
-        want = field(t_us * 1e-6, xx[rows, cols], yy[rows, cols])
-        np.testing.assert_allclose(px[0][rows, cols], want, rtol=0, atol=1e-13)
+    rng = np.random.default_rng(6)
+    radius = 25.4
+    grow = np.exp(np.stack([136.5 / radius * synth.REACH_PX, 4.0 * synth.REACH_PX], axis=1) * (1.0 + 1e-9))
+    checked = far = 0
+    for _ in range(1500):
+        x, y = int(rng.integers(0, 80)), int(rng.integers(0, 80))
+        cx, cy = rng.uniform(0, 80, 2)
+        bg = float(rng.uniform(0.3, 0.4))
+        spin = cx / radius
+        off, v, e_pattern, e_edge = synth._ball_value(x, y, cx, cy, radius, np.cos(spin), np.sin(spin), bg)
+        b = np.log(bg + 0.05) if off else np.log(v)
+        on, thr_off = rng.uniform(0.05, 0.4, 2)
+        ref = b + rng.uniform(-thr_off, on)
+        v_lo, v_hi = np.exp(ref - thr_off + synth.MARGIN), np.exp(ref + on - synth.MARGIN)
+        k = synth._ball_reach(off, e_pattern, e_edge, bg, grow, int(rng.integers(0, len(grow))), v_lo, v_hi)
+        if k < 0:
+            continue
+        far += synth.REACH_PX[k] >= 0.8
+        for _ in range(10):
+            d = synth.REACH_PX[k] * rng.uniform(0, 1) * (1 - 1e-9)
+            a = rng.uniform(0, 2 * np.pi)
+            nx, ny = cx + d * np.cos(a), cy + d * np.sin(a)
+            o, u, _, _ = synth._ball_value(x, y, nx, ny, radius, np.cos(nx / radius), np.sin(nx / radius), bg)
+            b = np.log(bg + 0.05) if o else np.log(u)
+            assert not synth._crosses(b, ref, on, thr_off), (x, y, cx, cy, d, k)
+            checked += 1
+    assert checked > 5_000 and far > 100
 
 
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", range(6))
 def test_compiled_scenes_give_the_reference_events(seed):
-    """`scene()` (compiled steps) and `scene(compiled=False)` (numpy field every step): the same events, on
-    random sensors, seeds, durations and scene parameters."""
+    """`scene()` (compiled runs, skipping what cannot cross) and `scene(compiled=False)` (numpy field at
+    every step, every pixel of the region): the same events, on random sensors, seeds, durations, sensor
+    models and scene parameters (turntables turning either way, bars fast enough to wrap)."""
     rng = np.random.default_rng(100 + seed)
     g = Geometry(int(rng.integers(32, 100)), int(rng.integers(24, 80)))
     duration = int(rng.integers(20, 120)) * 1000
-    for name, params in (("turntable", {"sectors": int(rng.integers(2, 9)), "rev_hz": (float(rng.uniform(1, 6)), 0.5)}),
-                         ("ball", {"speed_px_s": (float(rng.uniform(20, 100)), float(rng.uniform(200, 900)))}),
-                         ("bar", {"speed_px_s": float(rng.uniform(50, 2000)), "width_px": float(rng.uniform(2, 20))})):
-        fast = scene(name, g, duration_us=duration, seed=seed, **params)
-        ref = scene(name, g, duration_us=duration, seed=seed, compiled=False, **params)
+    model = SensorModel(threshold=float(rng.uniform(0.1, 0.4)), threshold_sigma=float(rng.uniform(0, 0.06)),
+                        refractory_us=int(rng.choice([0, 50, 100, 500])))
+    for name, params in (("turntable", {"sectors": int(rng.integers(2, 9)),
+                                        "rev_hz": (float(rng.uniform(-6, 6)), float(rng.uniform(-2, 2)))}),
+                         ("ball", {"speed_px_s": (float(rng.uniform(20, 100)), float(rng.uniform(200, 2000)))}),
+                         ("bar", {"speed_px_s": float(rng.uniform(50, 5000)), "width_px": float(rng.uniform(1, 20))})):
+        fast = scene(name, g, duration_us=duration, seed=seed, model=model, **params)
+        ref = scene(name, g, duration_us=duration, seed=seed, model=model, compiled=False, **params)
         assert len(fast) == len(ref) > 0, name
         for a in "txyp":
             assert np.array_equal(getattr(fast, a), getattr(ref, a)), (name, a)
+
+
+@pytest.mark.parametrize("name, seed, duration_us", [("turntable", 1, 1_000_000), ("ball", 2, 1_000_000),
+                                                     ("bar", 3, 500_000)])
+def test_shipped_recordings_signal_is_what_synth_makes(name, seed, duration_us):
+    """The shipped recordings (`make recordings`) hold exactly the signal events `scene` makes today: the
+    learned model and the docs' tables are built from them."""
+    from pathlib import Path
+
+    import evstream
+
+    shipped = evstream.read(Path(__file__).resolve().parents[1] / "recordings" / f"{name}.npz")
+    signal = shipped.label == NoiseClass.SIGNAL
+    made = scene(name, duration_us=duration_us, seed=seed)
+    assert len(made) == signal.sum()
+    for a in "txyp":
+        assert np.array_equal(getattr(made, a), getattr(shipped, a)[signal]), a
