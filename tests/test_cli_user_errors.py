@@ -162,7 +162,7 @@ def test_replay_saving_where_no_file_can_be_written_is_a_plain_error(tmp_path, c
 
 # -- live: what a publisher says when nobody gets its packets (real Zenoh router on loopback) --------------
 def test_publisher_whose_router_goes_away_says_how_much_nobody_received(tmp_path):
-    from test_zenoh_live import Procs, free_port
+    from test_zenoh_live import PacketCount, Procs, free_port
 
     procs = Procs(tmp_path)
     try:
@@ -170,16 +170,15 @@ def test_publisher_whose_router_goes_away_says_how_much_nobody_received(tmp_path
         router = procs.router(port)
         sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end",
                                "--archive", str(tmp_path / "flow.mcap"))
-        # bar.npz is 0.5 s of events: 3.3 s at --speed 0.15, so the router dies in the middle
-        pub = procs.start("publish", SHIPPED, "--key", "evstream/cam/events", "--connect", f"tcp/127.0.0.1:{port}",
-                          "--speed", "0.15", "--wait-subscribers", "20", "--drain-s", "1", "--json")
-        deadline = time.monotonic() + 60
-        while not any(tmp_path.glob("flow*")) and time.monotonic() < deadline:
-            time.sleep(0.05)  # the archive (or its temporary name) opens with the first packet: packets flow
-        time.sleep(1.0)  # a third of the stream out, two thirds to go (a fixed wait from start failed under load)
-        assert pub.poll() is None, procs.stderr(pub)
-        router.send_signal(signal.SIGTERM)
-        router.wait(timeout=30)
+        # bar.npz is 0.5 s of events (50 packets): 3.3 s at --speed 0.15, so the router dies in the middle
+        with PacketCount(port, "evstream/cam/events") as flowing:
+            pub = procs.start("publish", SHIPPED, "--key", "evstream/cam/events", "--connect",
+                              f"tcp/127.0.0.1:{port}", "--speed", "0.15", "--wait-subscribers", "20", "--drain-s", "1",
+                              "--json")
+            flowing.wait(15)  # a third of the stream out, two thirds to go
+            assert pub.poll() is None, procs.stderr(pub)
+            router.send_signal(signal.SIGTERM)
+            router.wait(timeout=30)
         got = procs.result(pub)  # exit 0: the camera itself did nothing wrong
         assert 0 < got["unmatched_packets"] < got["packets"] == 50
         assert 0 < got["unmatched_events"] < got["events"]
@@ -311,7 +310,7 @@ def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(
     on the wire the packet is counted as malformed and the stream goes on (docs/live.md)."""
     from evstream.sources.zenoh_session import open_session
     from mcap.writer import Writer
-    from test_zenoh_live import Procs, free_port, matched_publisher
+    from test_zenoh_live import Procs, _end_stream, free_port, matched_publisher
 
     from evstream.codecs.event_packet import DATATYPE, MSGDEF, encode_packet
     from evstream.codecs.packets import to_packet
@@ -350,9 +349,7 @@ def test_a_packet_claiming_a_giant_sensor_is_refused_in_a_file_and_skipped_live(
             pub = matched_publisher(session, "evstream/evil/events", timeout_s=20)
             pub.put(encode_packet(to_packet(t, x, x, p, width=60000, height=60000, seq=0)))
             pub.put(encode_packet(to_packet(t + 1000, x, x, p, width=346, height=260, seq=1)))
-            time.sleep(0.5)
-            pub.delete()
-            time.sleep(0.5)
+            _end_stream(session, pub)  # both packets and the end mark reached the router
         finally:
             session.close()
         got = procs.result(sub)["cameras"]["evil"]  # exit 0: the subscriber lived through it

@@ -70,6 +70,32 @@ def matched_publisher(session, key: str, timeout_s: float = 10):
     return pub
 
 
+class PacketCount:
+    """Counts the packets the router forwards on `key` to a subscriber of the test's own: what a test
+    waits on (bounded) instead of sleeping a fixed time while a stream flows."""
+
+    def __init__(self, port: int, key: str):
+        self.n = 0
+        self.session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+        self.session.declare_subscriber(key, self._seen)
+
+    def _seen(self, sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.n += 1
+
+    def wait(self, n: int, timeout_s: float = 60) -> None:
+        deadline = time.monotonic() + timeout_s
+        while self.n < n:
+            assert time.monotonic() < deadline, f"{self.n} packets within {timeout_s} s, waited for {n}"
+            time.sleep(0.01)
+
+    def __enter__(self) -> PacketCount:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.session.close()
+
+
 class Procs:
     """Child processes of one test: started with pipes, always killed at teardown (a test never hangs)."""
 
@@ -192,13 +218,11 @@ def test_publisher_restarted_mid_stream(procs, tmp_path):
     procs.router(port)
     sub = procs.subscriber(port, "evstream/cam1/events", "--denoise", "paper", "--archive",
                            str(tmp_path / "live.mcap"), "--until-end", "--idle-s", "40")
-    first = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
-                        "--speed", "1", "--wait-subscribers", "10", "--drain-s", "30")
-    deadline = time.monotonic() + 30
-    while not (tmp_path / "live.mcap.part").exists() and time.monotonic() < deadline:
-        time.sleep(0.05)  # the archive opens (beside its name until closed) with the first packet: packets flow
-    time.sleep(0.4)
-    first.kill()  # no end mark: the camera just vanished
+    with PacketCount(port, "evstream/cam1/events") as flowing:
+        first = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
+                            "--speed", "1", "--wait-subscribers", "10", "--drain-s", "30")
+        flowing.wait(20)  # 20 of the 100 packets (10 ms each, sent in real time) went through the router
+        first.kill()  # no end mark: the camera just vanished
     first.wait(timeout=10)
     second = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
                          "--speed", "0", "--wait-subscribers", "10", "--drain-s", "30", "--json")
@@ -314,13 +338,11 @@ def test_a_router_outage_mid_stream_is_reported_and_counted_in_missing(procs, tm
     router = procs.router(port)
     sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end", "--idle-s", "40",
                            "--archive", str(tmp_path / "outage.mcap"))
-    pub = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect",
-                      f"tcp/127.0.0.1:{port}", "--speed", "0.05", "--wait-subscribers", "10", "--json")
-    deadline = time.monotonic() + 30
-    while not any(tmp_path.glob("*outage*")) and time.monotonic() < deadline:
-        time.sleep(0.05)  # the archive (or its temporary name) opens with the first packet: packets flow
-    time.sleep(1.0)  # (a fixed wait under load killed the router before the publisher had connected)
-    router.kill()
+    with PacketCount(port, "evstream/cam1/events") as flowing:
+        pub = procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect",
+                          f"tcp/127.0.0.1:{port}", "--speed", "0.05", "--wait-subscribers", "10", "--json")
+        flowing.wait(5)  # 5 of the 100 packets (one per 0.2 s) went through: the publisher is connected
+        router.kill()
     procs.wait_for(sub, "lost the connection to router")
     procs.router(port)
     procs.wait_for(sub, "evstream: connected to router", timeout_s=30)
