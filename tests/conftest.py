@@ -8,8 +8,10 @@ ROOT = Path(__file__).resolve().parents[1]
 REAL_DATA = Path(os.environ.get("EVSTREAM_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 
 # `HYPOTHESIS_PROFILE=thorough make test` for a long search; the default keeps `make test` quick.
-for name, examples in (("default", 25), ("thorough", 400)):
-    settings.register_profile(name, max_examples=examples, deadline=None,
+# `mutation` (tests/mutation.py): fewer, fixed examples, since each mutant reruns the tests with the
+# mutated kernels as plain Python; the same examples for every mutant, so scores are reproducible.
+for name, examples in (("default", 25), ("thorough", 400), ("mutation", 10)):
+    settings.register_profile(name, max_examples=examples, deadline=None, derandomize=name == "mutation",
                               suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 

@@ -3,16 +3,20 @@ against that module's fast tests only, in a copy of the tree under out/mutation/
 never touched). Prints the score per module and lists the survivors.
 
     python tests/mutation.py testing codecs        # modules by name (see TARGETS); none: all of them
+    python tests/mutation.py --dry codecs          # its tests against the plain kernels, unmutated
 
-Numba: mutmut 3 mutates plain functions only (it skips decorated ones, so the @njit kernels are not
-mutated; their plain-Python references in the tests guard them), and forks each mutant from one
-process that already compiled the kernels. NUMBA_DISABLE_JIT is not usable: as plain Python the
-kernels overflow numpy's fixed-width integers (uint8 * int under NumPy 2 promotion) where numba
-widens them. Numba's cache goes to a fresh folder per run, so no compiled code outlives a run.
+Numba: mutmut 3 skips every decorated function (its trampoline, applied under the function's own
+decorators, would be what numba compiles). So the copy of each mutated file has its kernels' `@njit`
+lines removed (`plain_kernels`): there they run as plain Python and mutmut mutates them like any
+function; everything not being mutated stays compiled. A kernel factory's `functools.cache` goes too
+(its nested kernel is then mutated with it). Only functions calling a numba `@intrinsic` (no
+plain-Python form) stay compiled. The work tree is never changed: normal runs are the same code.
+Numba's cache goes to a fresh folder per run, so no compiled code outlives a run.
 """
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import re
@@ -25,18 +29,63 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "mutation"
 
 # module -> (files to mutate, as paths in the copy, where sources/ lives at evstream/sources/; tests)
+CODECS = "evstream/codecs/"
+DENOISE = "evstream/denoise/"
+FRAMING = "evstream/framing/"
 TARGETS = {
     "testing": (["evstream/testing.py"], ["tests/test_invariant_kit.py"]),
     "sources_base": (["evstream/sources/_base.py"],
                      ["tests/test_sources_formats.py", "tests/test_sources_bad_input.py",
                       "tests/test_sources_kernels.py"]),
-    "framing": (["evstream/framing/*"], ["tests/test_framing.py", "tests/test_invariant_kit.py"]),
-    "codecs": (["evstream/codecs/*"], ["tests/test_codecs_evt2.py", "tests/test_codecs_evt3.py",
-                                       "tests/test_event_packet.py", "tests/test_zenoh_attachment.py"]),
-    "denoise": (["evstream/denoise/*"], ["tests/test_baselines.py", "tests/test_paper_cascade.py",
-                                         "tests/test_rowsum.py"]),
+    # represent.py is left out: its tests (test_represent.py) are the representations' own module's
+    "framing": ([FRAMING + f for f in ("arrays.py", "base.py", "fixed.py", "options.py", "overlap.py",
+                                       "render.py", "stats.py")],
+                ["tests/test_framing.py", "tests/test_invariant_kit.py"]),
+    "codecs": ([CODECS + f for f in ("attachment.py", "event_packet.py", "evt2.py", "evt3.py")],
+               ["tests/test_codecs_evt2.py", "tests/test_codecs_evt3.py", "tests/test_event_packet.py",
+                "tests/test_zenoh_attachment.py"]),
+    # the MCAP payloads: their tests are the archive's
+    "codecs_payloads": ([CODECS + "mono.py", CODECS + "packets.py"], ["tests/test_mcap_archive.py"]),
+    # the paper's cascade (the default denoiser) and the baselines; learned/ has its own tests
+    "denoise_cascade": ([DENOISE + f for f in ("base.py", "cascade.py", "common.py", "density.py",
+                                               "rowsum.py", "timeseries.py")],
+                        ["tests/test_paper_cascade.py", "tests/test_rowsum.py"]),
+    "denoise_baselines": ([DENOISE + f for f in ("baf.py", "dwf.py", "hotpixel.py", "khodamoradi.py",
+                                                 "oracle.py", "refractory.py", "stcf.py", "ynoise.py")],
+                          ["tests/test_baselines.py"]),
 }
+ALIASES = {"denoise": ["denoise_cascade", "denoise_baselines"]}  # and `codecs_payloads` for codecs
 IGNORE = shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc", "*.pyc")
+
+
+def _is_njit(dec: ast.expr) -> bool:
+    f = dec.func if isinstance(dec, ast.Call) else dec
+    return (isinstance(f, ast.Name) and f.id == "njit") or (isinstance(f, ast.Attribute) and f.attr == "njit")
+
+
+def _is_cache(dec: ast.expr) -> bool:
+    f = dec.func if isinstance(dec, ast.Call) else dec
+    return isinstance(f, ast.Attribute) and f.attr in ("cache", "lru_cache")
+
+
+def plain_kernels(source: str) -> str:
+    """`source` with its numba kernels as plain Python: `@njit` lines removed, and `functools.cache`
+    on a function that builds a kernel; kept on functions calling an `@intrinsic` (numba-only)."""
+    tree = ast.parse(source)
+    intrinsics = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)
+                  and any(isinstance(d, ast.Name) and d.id == "intrinsic" for d in f.decorator_list)}
+    drop: set[int] = set()
+    for f in ast.walk(tree):
+        if not isinstance(f, ast.FunctionDef):
+            continue
+        calls = {c.func.id for c in ast.walk(f) if isinstance(c, ast.Call) and isinstance(c.func, ast.Name)}
+        builds_kernel = any(isinstance(g, ast.FunctionDef) and g is not f and any(map(_is_njit, g.decorator_list))
+                            for g in ast.walk(f))
+        for dec in f.decorator_list:
+            if (_is_njit(dec) and not calls & intrinsics) or (_is_cache(dec) and builds_kernel):
+                drop.update(range(dec.lineno - 1, dec.end_lineno))  # the `@` is on dec.lineno
+    lines = source.splitlines(keepends=True)
+    return "".join(line for i, line in enumerate(lines) if i not in drop)
 
 
 def workspace(name: str) -> Path:
@@ -50,6 +99,10 @@ def workspace(name: str) -> Path:
         shutil.copytree(ROOT / sub, ws / "evstream" / sub, ignore=IGNORE)
     shutil.copytree(ROOT / "tests", ws / "tests", ignore=IGNORE)
     shutil.copytree(ROOT / "recordings", ws / "recordings")
+    for pattern in mutate:
+        for path in ws.glob(pattern):
+            if path.suffix == ".py":
+                path.write_text(plain_kernels(path.read_text()))
     pyproject = (ROOT / "pyproject.toml").read_text()
     pyproject = re.sub(r"\[tool\.pytest\.ini_options\][^\[]*", "", pyproject)
     (ws / "pyproject.toml").write_text(pyproject + "\n[tool.mutmut]\n" + "\n".join([
@@ -82,7 +135,8 @@ def score(ws: Path) -> dict:
 
 def run(name: str) -> dict:
     ws = workspace(name)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(ws / ".numba_cache"), PYTHONHASHSEED="0")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(ws / ".numba_cache"), PYTHONHASHSEED="0",
+               HYPOTHESIS_PROFILE=os.environ.get("HYPOTHESIS_PROFILE", "mutation"))
     env.pop("NUMBA_DISABLE_JIT", None)
     children = os.environ.get("MUTATION_CHILDREN", "2")
     with open(ws / "mutmut.log", "w") as log:
@@ -93,8 +147,21 @@ def run(name: str) -> dict:
     return result
 
 
+def dry(name: str) -> int:
+    """The module's tests against its plain-Python kernels, unmutated: they must pass (and show how
+    long mutmut's first, whole-selection run takes)."""
+    ws = workspace(name)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(ws / ".numba_cache"), PYTHONPATH=str(ws),
+               HYPOTHESIS_PROFILE=os.environ.get("HYPOTHESIS_PROFILE", "mutation"))
+    tests = TARGETS[name][1]
+    return subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-q", "--durations=15",
+                           *tests], cwd=ws, env=env).returncode
+
+
 def main(argv: list[str]) -> int:
-    names = argv or list(TARGETS)
+    if argv[:1] == ["--dry"]:
+        return max(dry(n) for n in argv[1:])
+    names = [n for a in (argv or list(TARGETS)) for n in ALIASES.get(a, [a])]
     unknown = [n for n in names if n not in TARGETS]
     if unknown:
         print(f"unknown module {unknown}; choose from {', '.join(TARGETS)}", file=sys.stderr)

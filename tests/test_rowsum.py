@@ -5,6 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from numba import njit
+from numba.extending import is_jitted
 
 from evstream.denoise.rowsum import column_sum, lanes, padded_map, row_add
 
@@ -15,12 +16,15 @@ def _apply(a, pos, delta, L):
         row_add(a, pos[i], delta[i], L)
 
 
-@njit
 def _columns(a, q, stride, L):
     out = np.empty(len(q), np.int64)
     for i in range(len(q)):
         out[i] = column_sum(a, q[i], stride, L)
     return out
+
+
+if is_jitted(column_sum):  # compiled, as stages call it (tests/mutation.py runs it as plain Python)
+    _columns = njit(_columns)
 
 
 @pytest.mark.parametrize("dtype", [np.int32, np.uint16, np.uint8, np.int64])
