@@ -191,6 +191,16 @@ class EventChunk:
     def replace(self, **changes) -> EventChunk:
         return dataclasses.replace(self, **changes)
 
+    def with_classes(self, cls: np.ndarray) -> EventChunk:
+        """`replace(cls=cls)` without re-checking the other fields (~6 µs a call in a stage): `cls` must
+        be a 1-D uint8 array of len(self) events, as every stage writes."""
+        if cls.dtype != np.uint8 or cls.shape != self.t.shape:
+            raise EventError(f"EventChunk: cls must be uint8 of shape {self.t.shape}, got {cls.dtype} {cls.shape}")
+        out = object.__new__(type(self))
+        out.__dict__.update(self.__dict__)
+        out.__dict__["cls"] = cls
+        return out
+
     def classes(self) -> np.ndarray:
         """`cls`, or all SIGNAL when no stage has classified this chunk."""
         return self.cls if self.cls is not None else np.zeros(len(self), np.uint8)

@@ -31,15 +31,16 @@ class Classifier:
     """
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
-        cls = chunk.classes().copy()
+        cls = chunk.cls
+        if cls is None or not np.count_nonzero(cls):  # all live (the usual first stage): no copy, no gather
+            return chunk.with_classes(np.ascontiguousarray(self.classify(chunk), dtype=np.uint8))
+        cls = cls.copy()
         live = np.flatnonzero(cls == NoiseClass.SIGNAL)
-        if len(live) == len(cls):
-            cls = np.ascontiguousarray(self.classify(chunk), dtype=np.uint8)
-        elif len(live):
+        if len(live):
             cls[live] = self.classify(chunk[live])
         else:
             self.classify(chunk[live])  # let the stage see the watermark
-        return chunk.replace(cls=cls)
+        return chunk.with_classes(cls)
 
     def classify(self, chunk: EventChunk) -> np.ndarray:
         raise NotImplementedError
@@ -58,9 +59,9 @@ class InPlaceClassifier(Classifier):
         raise NotImplementedError
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
-        codes = chunk.classes().copy()
+        codes = chunk.cls.copy() if chunk.cls is not None else np.zeros(len(chunk), np.uint8)
         self._run(chunk, codes, want_score=False)
-        return chunk.replace(cls=codes)
+        return chunk.with_classes(codes)
 
     def classify(self, chunk: EventChunk) -> np.ndarray:
         codes = np.zeros(len(chunk), np.uint8)

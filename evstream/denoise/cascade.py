@@ -51,10 +51,15 @@ class PaperCascade:
         return self.density.window_us + self.timeseries.history_us
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
-        codes = chunk.classes().copy()
-        for stage in self._stages:  # each skips what an earlier one rejected: no gather, no copy
-            stage._run(chunk, codes, want_score=False)
-        return chunk.replace(cls=codes)
+        if chunk.cls is None:
+            codes, all_live = np.zeros(len(chunk), np.uint8), True
+        else:
+            codes = chunk.cls.copy()
+            all_live = not np.count_nonzero(codes)
+        # each skips what an earlier one rejected: no gather, no copy
+        self._stages[0]._run(chunk, codes, False, all_live)
+        self._stages[1]._run(chunk, codes, False)
+        return chunk.with_classes(codes)
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
         """Class codes and one signal-likeness score per event of an unclassified chunk, for ROC

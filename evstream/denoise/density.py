@@ -174,23 +174,35 @@ class DensityFilter(InPlaceClassifier):
             "per_pol": np.zeros(2, np.int64),
         }
 
-    def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
-        """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores."""
+    def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool, all_live: bool | None = None) -> np.ndarray:
+        """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores.
+        `all_live`: the caller knows whether every code is SIGNAL (None: test it). The parameters are
+        read when the state is built, on the first chunk: the per-call cost is the kernel's dispatch."""
         s = self._state
-        if s is None or s["geometry"] != chunk.geometry:
-            s = self._state = self._init(chunk)
-        n = len(chunk)
-        score = np.zeros(n if want_score else 0, np.float64)
         g = chunk.geometry
-        kernel = density_kernel(self.radius_px, ABSOLUTE if self.mode == "absolute" else RELATIVE,
-                                self.match_polarity, self.clip_border, want_score, not codes.any())
+        if s is None or (s["geometry"] is not g and s["geometry"] != g):
+            s = self._state = self._init(chunk)
+            self._bind()
+        if all_live is None:
+            all_live = not np.count_nonzero(codes)
+        kernel = density_kernel(*self._options, want_score, all_live)
+        n = len(chunk)
+        score = np.zeros(n, np.float64) if want_score else _NO_SCORE
+        t, x, y, p = chunk.t, chunk.x, chunk.y, chunk.p
         i = 0
         while True:
-            i = kernel(
-                chunk.t, chunk.x, chunk.y, chunk.p, i, codes, int(self.noise_class), s["hsum"],
-                g.width + 2 * self.radius_px, s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["per_pol"],
-                self.window_us, float(self.density_hz), float(self.rho_rel), g.width, g.height, score,
-            )
+            i = kernel(t, x, y, p, i, codes, *self._args, score)
             if i >= n:
                 return score
             grow_fifo(s, ("fifo_t", "fifo_pos"))
+            self._bind()
+
+    def _bind(self) -> None:
+        """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
+        s, g, r = self._state, self._state["geometry"], self.radius_px
+        self._options = (r, ABSOLUTE if self.mode == "absolute" else RELATIVE, self.match_polarity, self.clip_border)
+        self._args = (int(self.noise_class), s["hsum"], g.width + 2 * r, s["fifo_t"], s["fifo_pos"], s["fifo_state"],
+                      s["per_pol"], self.window_us, float(self.density_hz), float(self.rho_rel), g.width, g.height)
+
+
+_NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it

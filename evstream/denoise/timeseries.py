@@ -40,16 +40,19 @@ DIFFERENCE, RATIO = 0, 1
 
 
 @functools.cache
-def dc_kernel(radius, form, want_score):
-    """The kernel compiled for one configuration (options as compile-time constants)."""
+def dc_kernel(options, want_score):
+    """The kernel compiled for one configuration, `options` = (radius, form) (compile-time constants)."""
+    radius, form = options
     L = 2 * radius + 1
 
     @njit(cache=True, nogil=True)
-    def kernel(t, x, y, start, codes, noise_code, pixel, rowsum, padded_width, fifo_pos, per_bin,
+    def kernel(t, x, y, live, cursor, codes, noise_code, pixel, rowsum, padded_width, fifo_pos, per_bin,
                fifo_state, bin_us, n_bins, lam, width, height, out_score):
-        """For each event still SIGNAL in `codes` from `start`: mark its pixel active in the event's bin,
-        compare the pixel's active bins with its neighbours' mean, write `noise_code` when hot (and the
-        score if `want_score`). Returns the index reached: len(t) unless the FIFO is full.
+        """For each event still SIGNAL in `codes`: mark its pixel active in the event's bin, compare the
+        pixel's active bins with its neighbours' mean, write `noise_code` when hot (and the score if
+        `want_score`). The events still SIGNAL are gathered once into `live` (length len(t)), then
+        judged from `cursor` = [next live index, live count (-1: not gathered yet)]; returns True when
+        all are done, False when the FIFO is full (the caller grows it and calls again: no re-gather).
 
         State, indexed like the padded `rowsum` map: `pixel`, a uint16 per pixel holding its count of
         active bins among the last n (low byte) and its last active bin modulo 256 (high byte); `rowsum`
@@ -67,13 +70,14 @@ def dc_kernel(radius, form, want_score):
         bin_start = b * bin_us  # [bin_start, bin_end) is bin b
         bin_end = bin_start + bin_us
         b_slot = b % n_bins  # per_bin[b_slot] counts bin b's activations
-        n = len(t)
-        live = np.empty(n - start, np.int64)  # the events still SIGNAL, gathered without a branch:
-        k = 0  # skipping the others in the loop below mispredicts on every other event
-        for i in range(start, n):
-            live[ix(k)] = i
-            k += codes[ix(i)] == 0
-        j = 0
+        k = cursor[1]
+        if k < 0:  # the events still SIGNAL, gathered without a branch: skipping the others in the
+            k = 0  # loop below mispredicts on every other event
+            for i in range(len(t)):
+                live[ix(k)] = i
+                k += codes[ix(i)] == 0
+            cursor[1] = k
+        j = cursor[0]
         while j < k:
             stop = min(k, j + cap - size)  # each event pushes at most one activation
             if stop == j:
@@ -132,7 +136,8 @@ def dc_kernel(radius, form, want_score):
         fifo_state[0] = head
         fifo_state[1] = size
         fifo_state[2] = b
-        return live[j] if j < k else n
+        cursor[0] = j
+        return j >= k
 
     return kernel
 
@@ -188,18 +193,29 @@ class TimeSeriesFilter(InPlaceClassifier):
                 "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64)}
 
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
-        """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores."""
+        """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores. The
+        parameters are read when the state is built, on the first chunk."""
         s = self._state
         g = chunk.geometry
-        if s is None or s["geometry"] != g:
+        if s is None or (s["geometry"] is not g and s["geometry"] != g):
             s = self._state = self._init(g)
-        score = np.zeros(len(chunk) if want_score else 0, np.float64)
-        kernel = dc_kernel(self.radius_px, DIFFERENCE if self.form == "difference" else RATIO, want_score)
-        i = 0
-        while True:
-            i = kernel(chunk.t, chunk.x, chunk.y, i, codes, int(self.noise_class), s["pixel"],
-                       s["rowsum"], g.width + 2 * self.radius_px, s["fifo_pos"], s["per_bin"], s["fifo_state"],
-                       self.bin_us, self.n_bins, float(self.lam), g.width, g.height, score)
-            if i >= len(chunk):
-                return score
+            self._bind()
+        n = len(chunk)
+        score = np.zeros(n, np.float64) if want_score else _NO_SCORE
+        kernel = dc_kernel(self._options, want_score)
+        live = np.empty(n, np.int64)
+        cursor = np.array([0, -1], np.int64)
+        while not kernel(chunk.t, chunk.x, chunk.y, live, cursor, codes, *self._args, score):
             grow_fifo(s, ("fifo_pos",))
+            self._bind()
+        return score
+
+    def _bind(self) -> None:
+        """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
+        s, g, r = self._state, self._state["geometry"], self.radius_px
+        self._options = (r, DIFFERENCE if self.form == "difference" else RATIO)
+        self._args = (int(self.noise_class), s["pixel"], s["rowsum"], g.width + 2 * r, s["fifo_pos"], s["per_bin"],
+                      s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), g.width, g.height)
+
+
+_NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it
