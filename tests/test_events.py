@@ -137,3 +137,15 @@ def test_first_invalid_kernel_matches_reference(seed, n, last_t):
     x[rng.random(n) < 0.9] %= 8  # most inside
     got = _first_invalid(t, x, y, p, 8, 6, last_t)
     assert tuple(got) == first_invalid_reference(t, x, y, p, 8, 6, last_t)
+
+
+def test_with_classes_is_replace_without_the_field_checks():
+    s = random_stream(4, 50, G).replace(label=np.ones(50, np.uint8))
+    codes = (np.arange(50) % 3).astype(np.uint8)
+    fast, slow = s.with_classes(codes), s.replace(cls=codes)
+    for name in ("t", "x", "y", "p", "cls", "label", "geometry", "t_end"):
+        assert getattr(fast, name) is getattr(slow, name) or getattr(fast, name) == getattr(slow, name)
+    assert s.cls is None  # the original is untouched
+    for bad in (codes.astype(np.int64), codes[:-1], codes.reshape(5, 10)):
+        with pytest.raises(EventError):
+            s.with_classes(bad)

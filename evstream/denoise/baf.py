@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..events import EventChunk, NoiseClass
+from ..nowrap import ix
 from ..pipeline import register
 from .common import NEVER_US, ScoredClassifier, check, is_int
 
@@ -26,17 +27,18 @@ from .common import NEVER_US, ScoredClassifier, check, is_int
 @njit(cache=True, nogil=True)
 def baf_kernel(t, x, y, last, tau_us, out):
     """Write 0 (SIGNAL) or 1 (BACKGROUND) per event into `out`; `last` is the padded (H+2, W+2)
-    timestamp map, updated in place. Stops at the first supporting neighbour."""
+    timestamp map, updated in place. Branch-free: the newest of the 8 neighbours, read with unsigned
+    indices (`ix`), beats stopping at the first supporter (whose outcome the CPU cannot predict)."""
     for i in range(len(t)):
-        ti = t[i]
-        r = y[i] + 1
-        c = x[i] + 1
-        lim = ti - tau_us  # supported iff a neighbour's last timestamp > lim
-        ok = (last[r - 1, c - 1] > lim or last[r - 1, c] > lim or last[r - 1, c + 1] > lim
-              or last[r, c - 1] > lim or last[r, c + 1] > lim
-              or last[r + 1, c - 1] > lim or last[r + 1, c] > lim or last[r + 1, c + 1] > lim)
-        out[i] = 0 if ok else 1
-        last[r, c] = ti
+        ti = t[ix(i)]
+        r = np.intp(y[ix(i)]) + 1
+        c = np.intp(x[ix(i)]) + 1
+        newest = max(max(max(last[ix(r - 1), ix(c - 1)], last[ix(r - 1), ix(c)]),
+                         max(last[ix(r - 1), ix(c + 1)], last[ix(r), ix(c - 1)])),
+                     max(max(last[ix(r), ix(c + 1)], last[ix(r + 1), ix(c - 1)]),
+                         max(last[ix(r + 1), ix(c)], last[ix(r + 1), ix(c + 1)])))
+        out[ix(i)] = ti - newest >= tau_us  # supported iff the newest neighbour is younger than tau
+        last[ix(r), ix(c)] = ti
 
 
 @njit(cache=True, nogil=True)

@@ -16,6 +16,8 @@ from .base import Classifier
 
 # Timestamp of "never fired": far in the past, yet `t - NEVER_US` cannot overflow int64 for |t| < 2**62.
 NEVER_US = -(2**62)
+# The score argument of a kernel compiled without the score (`classify`): never touched.
+NO_SCORE = np.zeros(0, np.float64)
 
 
 class ScoredClassifier(Classifier):

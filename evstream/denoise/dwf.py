@@ -15,6 +15,7 @@ only; other thresholds read from the same pass are an approximation.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,35 +23,42 @@ from numba import njit
 
 from ..events import EventChunk
 from ..pipeline import register
-from .common import ScoredClassifier, check, is_int
+from .common import NO_SCORE, ScoredClassifier, check, is_int
 
 
-@njit(cache=True, nogil=True)
-def dwf_kernel(x, y, win_x, win_y, fill, head, radius, k, full_count, out, score):
-    """Class codes (0 SIGNAL, 1 BACKGROUND) and counts. `win_x`/`win_y` are (2, L) rings (row 0
-    signal, row 1 noise) with `fill`/`head` per ring, updated in place. Without `full_count` the
-    count stops at k (the score is then a lower bound)."""
-    for i in range(len(x)):
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        n = 0
-        for w in range(2):
-            for j in range(fill[w]):
-                if abs(np.int64(win_x[w, j]) - xi) + abs(np.int64(win_y[w, j]) - yi) <= radius:
-                    n += 1
-                    if n >= k and not full_count:
-                        break
-            if n >= k and not full_count:
-                break
-        w = 0 if n >= k else 1
-        out[i] = w
-        score[i] = n
-        h = head[w]
-        win_x[w, h] = xi
-        win_y[w, h] = yi
-        head[w] = (h + 1) % win_x.shape[1]
-        if fill[w] < win_x.shape[1]:
-            fill[w] += 1
+@functools.cache
+def dwf_kernel(want_score):
+    """The kernel with or without the score (a compile-time constant): without it, the count stops
+    at k and no score is written."""
+
+    @njit(cache=True, nogil=True)
+    def kernel(x, y, win_x, win_y, fill, head, radius, k, out, score):
+        """Class codes (0 SIGNAL, 1 BACKGROUND) and counts. `win_x`/`win_y` are (2, L) rings (row 0
+        signal, row 1 noise) with `fill`/`head` per ring, updated in place."""
+        for i in range(len(x)):
+            xi = np.int64(x[i])
+            yi = np.int64(y[i])
+            n = 0
+            for w in range(2):
+                for j in range(fill[w]):
+                    if abs(np.int64(win_x[w, j]) - xi) + abs(np.int64(win_y[w, j]) - yi) <= radius:
+                        n += 1
+                        if n >= k and not want_score:
+                            break
+                if n >= k and not want_score:
+                    break
+            w = 0 if n >= k else 1
+            out[i] = w
+            if want_score:
+                score[i] = n
+            h = head[w]
+            win_x[w, h] = xi
+            win_y[w, h] = yi
+            head[w] = (h + 1) % win_x.shape[1]
+            if fill[w] < win_x.shape[1]:
+                fill[w] += 1
+
+    return kernel
 
 
 @register("stage", "dwf")
@@ -83,12 +91,12 @@ class DoubleWindowFilter(ScoredClassifier):
     def _allocate(self, g):
         pass  # the windows do not depend on the sensor size
 
-    def _run(self, chunk, full_count):
+    def _run(self, chunk, want_score):
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
-        score = np.empty(len(chunk), np.float64)
-        dwf_kernel(chunk.x, chunk.y, self._win_x, self._win_y, self._fill, self._head, self.radius_px,
-                   self.k, full_count, out, score)
+        score = np.empty(len(chunk), np.float64) if want_score else NO_SCORE
+        dwf_kernel(want_score)(chunk.x, chunk.y, self._win_x, self._win_y, self._fill, self._head, self.radius_px,
+                               self.k, out, score)
         return out, score
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:

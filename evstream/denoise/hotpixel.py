@@ -18,6 +18,7 @@ not depend on the threshold, so one pass gives the exact ROC curve over `rate_hz
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,28 +26,35 @@ from numba import njit
 
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
-from .common import NEVER_US, ScoredClassifier, check, is_int
+from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
 
 
-@njit(cache=True, nogil=True)
-def hotpixel_kernel(t, x, y, counts, prev, cur_window, window_us, min_count, out, score):
-    """Class codes (0 SIGNAL, 2 HOT_PIXEL) and scores. `counts` (H, W) counts the current window,
-    `prev` (H, W) the previous one, `cur_window[0]` is the current window index; all in place."""
-    window_s = window_us * 1e-6
-    for i in range(len(t)):
-        w = t[i] // window_us
-        if w != cur_window[0]:
-            h, wd = counts.shape
-            adjacent = w == cur_window[0] + 1
-            for r in range(h):
-                for c in range(wd):
-                    prev[r, c] = counts[r, c] if adjacent else 0
-                    counts[r, c] = 0
-            cur_window[0] = w
-        n_prev = prev[y[i], x[i]]
-        out[i] = 2 if n_prev >= min_count else 0
-        score[i] = -(n_prev / window_s)
-        counts[y[i], x[i]] += 1
+@functools.cache
+def hotpixel_kernel(want_score):
+    """The kernel with or without the score (a compile-time constant: `classify` computes none)."""
+
+    @njit(cache=True, nogil=True)
+    def kernel(t, x, y, counts, prev, cur_window, window_us, min_count, out, score):
+        """Class codes (0 SIGNAL, 2 HOT_PIXEL) and scores. `counts` (H, W) counts the current window,
+        `prev` (H, W) the previous one, `cur_window[0]` is the current window index; all in place."""
+        window_s = window_us * 1e-6
+        for i in range(len(t)):
+            w = t[i] // window_us
+            if w != cur_window[0]:
+                h, wd = counts.shape
+                adjacent = w == cur_window[0] + 1
+                for r in range(h):
+                    for c in range(wd):
+                        prev[r, c] = counts[r, c] if adjacent else 0
+                        counts[r, c] = 0
+                cur_window[0] = w
+            n_prev = prev[y[i], x[i]]
+            out[i] = 2 if n_prev >= min_count else 0
+            if want_score:
+                score[i] = -(n_prev / window_s)
+            counts[y[i], x[i]] += 1
+
+    return kernel
 
 
 @register("stage", "hotpixel")
@@ -77,16 +85,19 @@ class HotPixelLearner(ScoredClassifier):
         self._counts = np.zeros((g.height, g.width), np.int64)
         self._prev = np.zeros((g.height, g.width), np.int64)
 
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+    def _run(self, chunk: EventChunk, want_score: bool) -> tuple[np.ndarray, np.ndarray]:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
-        score = np.empty(len(chunk), np.float64)
-        hotpixel_kernel(chunk.t, chunk.x, chunk.y, self._counts, self._prev, self._cur_window,
-                        self.window_us, self._min_count, out, score)
+        score = np.empty(len(chunk), np.float64) if want_score else NO_SCORE
+        hotpixel_kernel(want_score)(chunk.t, chunk.x, chunk.y, self._counts, self._prev, self._cur_window,
+                                    self.window_us, self._min_count, out, score)
         return out, score
 
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        return self._run(chunk, True)
+
     def classify(self, chunk: EventChunk) -> np.ndarray:
-        return self.classify_scored(chunk)[0]
+        return self._run(chunk, False)[0]
 
 
 assert NoiseClass.HOT_PIXEL == 2  # the kernel writes this code

@@ -16,6 +16,7 @@ gives the exact ROC curve over k (a coarse one: seven points at most).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,39 +24,45 @@ from numba import njit
 
 from ..events import EventChunk
 from ..pipeline import register
-from .common import NEVER_US, ScoredClassifier, check, is_int
+from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
 
 
-@njit(cache=True, nogil=True)
-def khodamoradi_kernel(t, x, y, p, col_t, col_y, col_p, row_t, row_x, row_p, tau_us, match, k,
-                       out, score):
-    """Class codes (0 SIGNAL, 1 BACKGROUND) and support counts; the column cells (`col_*`, length
-    W + 2) and row cells (`row_*`, length H + 2) are padded by one and updated in place."""
-    for i in range(len(t)):
-        ti = t[i]
-        pi = p[i]
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        s = 0
-        for d in range(-1, 2):
-            c = xi + 1 + d  # column cell x+d (padded index): its event must be within a row of y
-            if ti - col_t[c] <= tau_us and (not match or col_p[c] == pi):
-                dy = np.int64(col_y[c]) - yi
-                if -1 <= dy <= 1 and (d != 0 or dy != 0):
-                    s += 1
-            r = yi + 1 + d  # row cell y+d: its event must be within a column of x
-            if ti - row_t[r] <= tau_us and (not match or row_p[r] == pi):
-                dx = np.int64(row_x[r]) - xi
-                if -1 <= dx <= 1 and (d != 0 or dx != 0):
-                    s += 1
-        out[i] = 0 if s >= k else 1
-        score[i] = s
-        col_t[xi + 1] = ti
-        col_y[xi + 1] = yi
-        col_p[xi + 1] = pi
-        row_t[yi + 1] = ti
-        row_x[yi + 1] = xi
-        row_p[yi + 1] = pi
+@functools.cache
+def khodamoradi_kernel(want_score):
+    """The kernel with or without the score (a compile-time constant: `classify` computes none)."""
+
+    @njit(cache=True, nogil=True)
+    def kernel(t, x, y, p, col_t, col_y, col_p, row_t, row_x, row_p, tau_us, match, k, out, score):
+        """Class codes (0 SIGNAL, 1 BACKGROUND) and support counts; the column cells (`col_*`, length
+        W + 2) and row cells (`row_*`, length H + 2) are padded by one and updated in place."""
+        for i in range(len(t)):
+            ti = t[i]
+            pi = p[i]
+            xi = np.int64(x[i])
+            yi = np.int64(y[i])
+            s = 0
+            for d in range(-1, 2):
+                c = xi + 1 + d  # column cell x+d (padded index): its event must be within a row of y
+                if ti - col_t[c] <= tau_us and (not match or col_p[c] == pi):
+                    dy = np.int64(col_y[c]) - yi
+                    if -1 <= dy <= 1 and (d != 0 or dy != 0):
+                        s += 1
+                r = yi + 1 + d  # row cell y+d: its event must be within a column of x
+                if ti - row_t[r] <= tau_us and (not match or row_p[r] == pi):
+                    dx = np.int64(row_x[r]) - xi
+                    if -1 <= dx <= 1 and (d != 0 or dx != 0):
+                        s += 1
+            out[i] = 0 if s >= k else 1
+            if want_score:
+                score[i] = s
+            col_t[xi + 1] = ti
+            col_y[xi + 1] = yi
+            col_p[xi + 1] = pi
+            row_t[yi + 1] = ti
+            row_x[yi + 1] = xi
+            row_p[yi + 1] = pi
+
+    return kernel
 
 
 @register("stage", "khodamoradi")
@@ -87,13 +94,16 @@ class KhodamoradiFilter(ScoredClassifier):
         self._rows = (np.full(g.height + 2, NEVER_US, np.int64), np.zeros(g.height + 2, np.int32),
                       np.zeros(g.height + 2, np.uint8))
 
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+    def _run(self, chunk: EventChunk, want_score: bool) -> tuple[np.ndarray, np.ndarray]:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
-        score = np.empty(len(chunk), np.float64)
-        khodamoradi_kernel(chunk.t, chunk.x, chunk.y, chunk.p, *self._cols, *self._rows, self.tau_us,
-                           self.polarity_match, self.k, out, score)
+        score = np.empty(len(chunk), np.float64) if want_score else NO_SCORE
+        khodamoradi_kernel(want_score)(chunk.t, chunk.x, chunk.y, chunk.p, *self._cols, *self._rows, self.tau_us,
+                                       self.polarity_match, self.k, out, score)
         return out, score
 
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        return self._run(chunk, True)
+
     def classify(self, chunk: EventChunk) -> np.ndarray:
-        return self.classify_scored(chunk)[0]
+        return self._run(chunk, False)[0]

@@ -13,6 +13,7 @@ state does not depend on the period, so one pass gives the exact ROC curve over 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,19 +21,26 @@ from numba import njit
 
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
-from .common import NEVER_US, ScoredClassifier, check, is_int
+from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
 
 
-@njit(cache=True, nogil=True)
-def refractory_kernel(t, x, y, last, refractory_us, out, score):
-    """Class codes (0 SIGNAL, 2 HOT_PIXEL) and inter-event intervals; `last` (H, W) updated in place."""
-    for i in range(len(t)):
-        ti = t[i]
-        prev = last[y[i], x[i]]
-        dt = ti - prev
-        out[i] = 0 if dt >= refractory_us else 2
-        score[i] = np.inf if prev == NEVER_US else float(dt)
-        last[y[i], x[i]] = ti
+@functools.cache
+def refractory_kernel(want_score):
+    """The kernel with or without the score (a compile-time constant: `classify` computes none)."""
+
+    @njit(cache=True, nogil=True)
+    def kernel(t, x, y, last, refractory_us, out, score):
+        """Class codes (0 SIGNAL, 2 HOT_PIXEL) and inter-event intervals; `last` (H, W) updated in place."""
+        for i in range(len(t)):
+            ti = t[i]
+            prev = last[y[i], x[i]]
+            dt = ti - prev
+            out[i] = 0 if dt >= refractory_us else 2
+            if want_score:
+                score[i] = np.inf if prev == NEVER_US else float(dt)
+            last[y[i], x[i]] = ti
+
+    return kernel
 
 
 @register("stage", "refractory")
@@ -56,15 +64,18 @@ class RefractoryFilter(ScoredClassifier):
     def _allocate(self, g):
         self._last = np.full((g.height, g.width), NEVER_US, np.int64)
 
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+    def _run(self, chunk: EventChunk, want_score: bool) -> tuple[np.ndarray, np.ndarray]:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
-        score = np.empty(len(chunk), np.float64)
-        refractory_kernel(chunk.t, chunk.x, chunk.y, self._last, self.refractory_us, out, score)
+        score = np.empty(len(chunk), np.float64) if want_score else NO_SCORE
+        refractory_kernel(want_score)(chunk.t, chunk.x, chunk.y, self._last, self.refractory_us, out, score)
         return out, score
 
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        return self._run(chunk, True)
+
     def classify(self, chunk: EventChunk) -> np.ndarray:
-        return self.classify_scored(chunk)[0]
+        return self._run(chunk, False)[0]
 
 
 assert NoiseClass.HOT_PIXEL == 2  # the kernel writes this code

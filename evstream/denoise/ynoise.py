@@ -24,6 +24,7 @@ the exact ROC curve over the density threshold (hot test fixed).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,51 +32,60 @@ from numba import njit
 
 from ..events import EventChunk, NoiseClass
 from ..pipeline import register
-from .common import NEVER_US, ScoredClassifier, check, is_int
+from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
 
 
-@njit(cache=True, nogil=True)
-def ynoise_kernel(t, x, y, p, last, last_p, ring, head, radius, window_us, match, threshold, hot_window_us,
-                  hot_min_events, hot_ratio, out, score):
-    """Class codes and scores. `last`/`last_p` (H+2r, W+2r) hold each pixel's latest event, `ring`
-    (H+2r, W+2r, K) its last K timestamps, `head` the next ring slot; all updated in place."""
-    cap = ring.shape[2]
-    for i in range(len(t)):
-        ti = t[i]
-        pi = p[i]
-        r0 = y[i] + radius
-        c0 = x[i] + radius
-        density = 0
-        around = 0
-        for r in range(r0 - radius, r0 + radius + 1):
-            for c in range(c0 - radius, c0 + radius + 1):
-                age = ti - last[r, c]
-                if age < window_us and (not match or last_p[r, c] == pi):
-                    density += 1
-                if age < hot_window_us and (r != r0 or c != c0):
-                    around += 1
-        if density < threshold:
-            out[i] = 1
-            score[i] = density
-        else:
-            own = 0
-            slot = head[r0, c0]
-            for _ in range(cap):  # newest first: the first one past the window ends the count
-                slot = slot - 1 if slot > 0 else cap - 1
-                if ti - ring[r0, c0, slot] >= hot_window_us:
-                    break
-                own += 1
-            if own >= hot_min_events and own >= hot_ratio * (own + around):
-                out[i] = 2
-                score[i] = -1.0
+@functools.cache
+def ynoise_kernel(want_score):
+    """The kernel with or without the score (a compile-time constant: `classify` computes none)."""
+
+    @njit(cache=True, nogil=True)
+    def kernel(t, x, y, p, last, last_p, ring, head, radius, window_us, match, threshold, hot_window_us,
+               hot_min_events, hot_ratio, out, score):
+        """Class codes and scores. `last`/`last_p` (H+2r, W+2r) hold each pixel's latest event, `ring`
+        (H+2r, W+2r, K) its last K timestamps, `head` the next ring slot; all updated in place."""
+        cap = ring.shape[2]
+        for i in range(len(t)):
+            ti = t[i]
+            pi = p[i]
+            r0 = y[i] + radius
+            c0 = x[i] + radius
+            density = 0
+            around = 0
+            for r in range(r0 - radius, r0 + radius + 1):
+                for c in range(c0 - radius, c0 + radius + 1):
+                    age = ti - last[r, c]
+                    if age < window_us and (not match or last_p[r, c] == pi):
+                        density += 1
+                    if age < hot_window_us and (r != r0 or c != c0):
+                        around += 1
+            if density < threshold:
+                out[i] = 1
+                if want_score:
+                    score[i] = density
             else:
-                out[i] = 0
-                score[i] = density
-        h = head[r0, c0]
-        ring[r0, c0, h] = ti
-        head[r0, c0] = h + 1 if h + 1 < cap else 0
-        last[r0, c0] = ti
-        last_p[r0, c0] = pi
+                own = 0
+                slot = head[r0, c0]
+                for _ in range(cap):  # newest first: the first one past the window ends the count
+                    slot = slot - 1 if slot > 0 else cap - 1
+                    if ti - ring[r0, c0, slot] >= hot_window_us:
+                        break
+                    own += 1
+                if own >= hot_min_events and own >= hot_ratio * (own + around):
+                    out[i] = 2
+                    if want_score:
+                        score[i] = -1.0
+                else:
+                    out[i] = 0
+                    if want_score:
+                        score[i] = density
+            h = head[r0, c0]
+            ring[r0, c0, h] = ti
+            head[r0, c0] = h + 1 if h + 1 < cap else 0
+            last[r0, c0] = ti
+            last_p[r0, c0] = pi
+
+    return kernel
 
 
 @register("stage", "ynoise")
@@ -124,17 +134,20 @@ class YNoiseFilter(ScoredClassifier):
         self._ring = np.full((*shape, self.count_cap), NEVER_US, np.int64)
         self._head = np.zeros(shape, np.uint8)
 
-    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+    def _run(self, chunk: EventChunk, want_score: bool) -> tuple[np.ndarray, np.ndarray]:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
-        score = np.empty(len(chunk), np.float64)
-        ynoise_kernel(chunk.t, chunk.x, chunk.y, chunk.p, self._last, self._last_p, self._ring, self._head,
-                      self.radius_px, self.window_us, self.polarity_match, self.threshold,
-                      self.hot_window_us, self.hot_min_events, self.hot_ratio, out, score)
+        score = np.empty(len(chunk), np.float64) if want_score else NO_SCORE
+        ynoise_kernel(want_score)(chunk.t, chunk.x, chunk.y, chunk.p, self._last, self._last_p, self._ring,
+                                  self._head, self.radius_px, self.window_us, self.polarity_match, self.threshold,
+                                  self.hot_window_us, self.hot_min_events, self.hot_ratio, out, score)
         return out, score
 
+    def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
+        return self._run(chunk, True)
+
     def classify(self, chunk: EventChunk) -> np.ndarray:
-        return self.classify_scored(chunk)[0]
+        return self._run(chunk, False)[0]
 
 
 assert (NoiseClass.BACKGROUND, NoiseClass.HOT_PIXEL) == (1, 2)  # the kernel writes these codes
