@@ -10,16 +10,25 @@ the viewer has taken in; lag = now - the wall-clock time at which that event tim
 second: frames the page drew (requestAnimationFrame), and CPU of this process (the SDK's logging), of the
 serve process and of Chromium's processes.
 
-    .venv/bin/python -m benchmarks.bench_viewer_lag [--seconds 60] [--rates 0.1,1,5] [--modes before,after]
-        [--viewers web,native]
+    .venv/bin/python -m benchmarks.bench_viewer_lag [--seconds 60] [--rates 0.1,1,5]
+        [--modes before,batched,after] [--viewers web,native] [--layouts full,none]
+
+It prints each run's curve as it ends and a table at the end (lag at 5, 10, ... s; median and max after
+10 s; points drawn; the page's frames per second; CPU; the load average during the run: the machine's
+other work slows a software renderer most).
+
+`--layouts none`: the same page and stream, but a layout with no view, so the page takes the data in and
+draws nothing: the lag of ingestion alone (against `full`, what drawing adds).
 
 `native`: the same streams into the native viewer (`--spawn`'s), headless on the CPU (llvmpipe), its
 state read through `rerun.experimental.ViewerClient.get_state` every second (lag = now - the wall-clock
 time of the newest event time it has taken in). Its binary is found on PATH (`.venv/bin`).
 
 The page size is EVSTREAM_VIEWPORT (default 1600x1000; docs/live.md's numbers: 1024x640).
-`before` is the sink as it was (a call per entity per packet, no wall-clock budget, nothing dropped),
-`after` the defaults of `evstream subscribe --serve`.
+`before` is the sink as it was before issue 23 (a call per entity per packet, no wall-clock budget,
+nothing dropped), `batched` the first fix (one column per entity every 0.25 s: 7 chunks per send, 28 a
+second), `after` the defaults of `evstream subscribe --serve` (LIVE_OPTIONS: the points in one chunk
+every 0.5 s, the statistics every second: 5 chunks a second).
 """
 
 from __future__ import annotations
@@ -35,10 +44,11 @@ from pathlib import Path
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 from evstream.sinks.rerun_sink import LIVE_OPTIONS, TIMELINE, RerunSink
 from evstream.sinks.rerun_viewer import free_port, open_output
 
-from evstream.chromium import CHROMIUM, HeadlessChromium, viewer_times
+from evstream.chromium import CHROMIUM, VIEWPORT, HeadlessChromium, viewer_times
 from evstream.events import EventChunk, Geometry
 from evstream.pipeline import Batch, RunStats
 
@@ -47,10 +57,27 @@ FRAME_COUNTER = "window.__frames = 0; (function f() { window.__frames++; request
 STATE = "window.__frames + ' ' + btoa(String.fromCharCode(...window._handle.viewer_state()))"
 CHUNK_US = 10_000
 TAIL_S = float(os.environ.get("EVSTREAM_LAG_TAIL_S", "5"))
+# a mode may set sink options after its name, in this order (- for None): before:50000, after:::::-
+KNOBS = ("wall_budget_hz", "time_bin_us", "send_every_s", "stats_bin_us", "stats_every_s", "series_window_s")
 MODES = {
     "before": dict(send_every_s=0.0, wall_budget_hz=None, live=False),
+    # last session's live sink: one column per entity (4 for the points, 3 statistics) every 0.25 s
+    "batched": dict(live=True, wall_budget_hz=100_000.0, send_every_s=0.25, time_bin_us=10_000),
     "after": dict(LIVE_OPTIONS),  # what `subscribe --serve` uses
 }
+
+
+def mode_options(mode: str) -> dict:
+    """Sink options of a mode, with knobs after its name (e.g. after:50000::1.0: a wall-clock budget of
+    50 k points/s, sends every second)."""
+    name, *knobs = mode.split(":")
+    options = dict(MODES[name])
+    for key, value in zip(KNOBS, knobs):
+        if value == "-":
+            options[key] = None
+        elif value:
+            options[key] = float(value) if key.endswith("_s") or key.endswith("_hz") else int(value)
+    return options
 
 
 def cpu_s(pids: list[int]) -> float:
@@ -93,20 +120,19 @@ def stream(rate_hz: float, seconds: float, seed: int = 0):
         yield EventChunk(t=t, x=xs[k], y=ys[k], p=ps[k], geometry=G, cls=cs[k], t_end=(i + 1) * CHUNK_US)
 
 
-def run_one(mode: str, rate_hz: float, seconds: float, workdir: Path) -> dict:
+def no_views() -> rrb.Blueprint:
+    """A layout that draws nothing (one empty text log view), the time cursor following the newest data."""
+    return rrb.Blueprint(rrb.TextLogView(origin="/no_such_entity", name="nothing drawn"),
+                         rrb.TimePanel(timeline=TIMELINE, state="collapsed", play_state="following"),
+                         collapse_panels=True)
+
+
+def run_one(mode: str, rate_hz: float, seconds: float, workdir: Path, layout: str = "full") -> dict:
     out = open_output(serve=True, memory_limit="1GiB", log_dir=workdir, grpc_port=free_port(), web_port=free_port())
     rec = out.rec
-    name, *knobs = mode.split(":")  # e.g. after:50000:10000 = a wall-clock budget and a time bin
-    options = dict(MODES[name])
-    if knobs and knobs[0]:
-        options["wall_budget_hz"] = float(knobs[0])
-    if len(knobs) > 1:
-        options["time_bin_us"] = int(knobs[1])
-    if len(knobs) > 2:
-        options["send_every_s"] = float(knobs[2])
-    if len(knobs) > 3:
-        options["stats_bin_us"] = int(knobs[3])
-    sink = RerunSink(rec, geometry=G, play_state="following", **options)
+    sink = RerunSink(rec, geometry=G, play_state="following", **mode_options(mode))
+    if layout == "none":
+        rec.send_blueprint(no_views())
     browser = HeadlessChromium(workdir / f"profile-{mode}-{rate_hz:g}", workdir / "chromium.log")
     samples: list[dict] = []
     started = {"t": time.time()}
@@ -149,6 +175,7 @@ def run_one(mode: str, rate_hz: float, seconds: float, workdir: Path) -> dict:
                 last = now
                 stop.wait(max(0.0, 1.0 - (time.time() - t_req)))
 
+        load_before = os.getloadavg()[0]
         started["t"] = time.time()
         sampler = threading.Thread(target=sample, daemon=True)
         sampler.start()
@@ -167,6 +194,7 @@ def run_one(mode: str, rate_hz: float, seconds: float, workdir: Path) -> dict:
                 time.sleep(delay)
             sink.write(Batch(chunk, [], stats))
         sink.close(stats)
+        load = (load_before + os.getloadavg()[0]) / 2
         time.sleep(TAIL_S)  # how the lag ends
         stop.set()
         sampler.join(timeout=60)
@@ -176,7 +204,8 @@ def run_one(mode: str, rate_hz: float, seconds: float, workdir: Path) -> dict:
         out.finish()
         out.stop()
     lags = [s["lag_s"] for s in samples if s["lag_s"] is not None and 10 < s["t_s"] < seconds]
-    return {"mode": mode, "rate_Mev_s": rate_hz / 1e6, "seconds": seconds, "samples": samples,
+    return {"mode": mode, "viewer": "web", "layout": layout, "load": load, "rate_Mev_s": rate_hz / 1e6,
+            "seconds": seconds, "samples": samples, "offered": int(rate_hz * seconds),
             "lag_median_s": float(np.median(lags)) if lags else None,
             "lag_p90_s": float(np.percentile(lags, 90)) if lags else None,
             "lag_max_s": float(max(lags)) if lags else None,
@@ -190,12 +219,13 @@ def run_native(mode: str, rate_hz: float, seconds: float) -> dict:
     from rerun.experimental import ViewerClient
 
     port = free_port()
+    load_before = os.getloadavg()[0]
     client = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True)
     samples = []
     try:
         rec = rr.RecordingStream("evstream")
         rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy")
-        sink = RerunSink(rec, geometry=G, play_state="following", **MODES[mode])
+        sink = RerunSink(rec, geometry=G, play_state="following", **mode_options(mode))
         t0_wall = time.time()
         last = 0.0
         for chunk in stream(rate_hz, seconds):
@@ -217,51 +247,81 @@ def run_native(mode: str, rate_hz: float, seconds: float) -> dict:
     finally:
         client.quit()
     lags = [x["lag_s"] for x in samples if 10 < x["t_s"] < seconds]
-    return {"mode": mode, "viewer": "native", "rate_Mev_s": rate_hz / 1e6, "seconds": seconds, "samples": samples,
+    return {"mode": mode, "viewer": "native", "layout": "full", "load": (load_before + os.getloadavg()[0]) / 2,
+            "rate_Mev_s": rate_hz / 1e6, "seconds": seconds, "samples": samples, "offered": int(rate_hz * seconds),
             "lag_median_s": float(np.median(lags)) if lags else None,
             "lag_max_s": float(max(lags)) if lags else None, "points_logged": sink.points_logged}
 
 
+def curve(r: dict) -> str:
+    return " ".join("-" if x["lag_s"] is None else f"{x['lag_s']:.2f}" for x in r["samples"])
+
+
+def lag_at(r: dict, t_s: float) -> str:
+    """The lag sampled nearest to `t_s` s into the stream (within 1 s)."""
+    near = [x for x in r["samples"] if abs(x["t_s"] - t_s) <= 1.0 and x["lag_s"] is not None]
+    return f"{min(near, key=lambda x: abs(x['t_s'] - t_s))['lag_s']:.2f}" if near else "-"
+
+
+def _s(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}"
+
+
+def table(results: list[dict], seconds: float) -> str:
+    marks = [t for t in (5, 10, 20, 30, 40, 50, 60) if t <= seconds]
+    head = ["viewer", "layout", "sink", "M ev/s", *(f"{t} s" for t in marks), "median > 10 s", "max > 10 s",
+            "points drawn / offered", "page fps", "Chromium cores", "load"]
+    rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in results:
+        fps = np.mean([x["fps"] for x in r["samples"]]) if r["viewer"] == "web" and r["samples"] else None
+        cpu = np.mean([x["cpu_chromium"] for x in r["samples"]]) if r["viewer"] == "web" and r["samples"] else None
+        rows.append("| " + " | ".join([
+            r["viewer"], r["layout"], r["mode"], f"{r['rate_Mev_s']:g}", *(lag_at(r, t) for t in marks),
+            _s(r["lag_median_s"]), _s(r["lag_max_s"]), f"{r['points_logged'] / 1e6:.1f} M / {r['offered'] / 1e6:g} M",
+            "-" if fps is None else f"{fps:.1f}", "-" if cpu is None else f"{cpu:.2f}", f"{r['load']:.1f}"]) + " |")
+    return "\n".join(rows)
+
+
 def run(seconds: float = 60.0, rates=(0.1e6, 1e6, 5e6), modes=("before", "after"), json_out: str | None = None,
-        web: bool = True, native: bool = True):
+        web: bool = True, native: bool = True, layouts=("full",)):
     results = []
+    print(f"bench_viewer_lag: {seconds:g}-s streams, page {VIEWPORT[0]}x{VIEWPORT[1]}, {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.1f} at the start", flush=True)
     if web and CHROMIUM is None:
         print("bench_viewer_lag: web viewer skipped, no Chromium (apt-get install chromium)")
     with tempfile.TemporaryDirectory() as d:
         for rate in rates if web and CHROMIUM else ():
-            for mode in modes:  # interleaved: before and after under the same load
-                r = run_one(mode, rate, seconds, Path(d))
-                results.append(r)
-                curve = " ".join("-" if s["lag_s"] is None else f"{s['lag_s']:.1f}" for s in r["samples"])
-                cpu = {k: np.mean([s[k] for s in r["samples"]]) for k in ("cpu_sdk", "cpu_serve", "cpu_chromium")}
-                print(f"{mode:6s} {rate / 1e6:g} M ev/s: lag after 10 s median "
-                      f"{r['lag_median_s'] if r['lag_median_s'] is None else round(r['lag_median_s'], 2)} s, "
-                      f"p90 {r['lag_p90_s'] if r['lag_p90_s'] is None else round(r['lag_p90_s'], 2)} s, "
-                      f"max {r['lag_max_s'] if r['lag_max_s'] is None else round(r['lag_max_s'], 2)} s; "
-                      f"points drawn {r['points_logged']:,} dropped {r['points_dropped']:,}; CPU cores "
-                      f"sdk {cpu['cpu_sdk']:.2f} serve {cpu['cpu_serve']:.2f} chromium {cpu['cpu_chromium']:.2f}; "
-                      f"fps {np.mean([s['fps'] for s in r['samples']]):.1f}; logging behind the stream by up to "
-                      f"{r['sdk_behind_max_s']:.1f} s",
-                      flush=True)
-                print(f"  lag per second (s): {curve}", flush=True)
+            for layout in layouts:
+                for mode in modes:  # interleaved: before and after under the same load
+                    r = run_one(mode, rate, seconds, Path(d), layout)
+                    results.append(r)
+                    cpu = {k: np.mean([s[k] for s in r["samples"]]) for k in ("cpu_sdk", "cpu_serve", "cpu_chromium")}
+                    print(f"web {layout} {mode} {rate / 1e6:g} M ev/s: points drawn {r['points_logged']:,} dropped "
+                          f"{r['points_dropped']:,}; CPU cores sdk {cpu['cpu_sdk']:.2f} serve {cpu['cpu_serve']:.2f} "
+                          f"chromium {cpu['cpu_chromium']:.2f}; logging behind the stream by up to "
+                          f"{r['sdk_behind_max_s']:.1f} s; load {r['load']:.1f}", flush=True)
+                    print(f"  lag per second (s): {curve(r)}", flush=True)
     for rate in rates if native else ():
         for mode in modes:
             r = run_native(mode, rate, seconds)
             results.append(r)
-            print(f"native {mode:6s} {rate / 1e6:g} M ev/s: lag after 10 s median {r['lag_median_s']}, max "
-                  f"{r['lag_max_s']}; points drawn {r['points_logged']:,}", flush=True)
-            print("  lag per second (s): " + " ".join(f"{x['lag_s']:.2f}" for x in r["samples"]), flush=True)
+            print(f"native {mode} {rate / 1e6:g} M ev/s: points drawn {r['points_logged']:,}; load {r['load']:.1f}",
+                  flush=True)
+            print(f"  lag per second (s): {curve(r)}", flush=True)
+    print(table(results, seconds), flush=True)
     if json_out:
         Path(json_out).write_text(json.dumps(results, indent=1))
+    return results
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rates", default="0.1,1,5", help="M events/s offered, comma-separated")
-    ap.add_argument("--modes", default="before,after")
+    ap.add_argument("--modes", default="before,batched,after", help=f"of {', '.join(MODES)} (knobs: see KNOBS)")
     ap.add_argument("--json", help="write every sample here")
     ap.add_argument("--viewers", default="web,native", help="web (headless Chromium), native (headless)")
+    ap.add_argument("--layouts", default="full", help="full (the sink's), none (no view: ingestion alone)")
     a = ap.parse_args()
     run(a.seconds, [float(r) * 1e6 for r in a.rates.split(",")], a.modes.split(","), a.json,
-        web="web" in a.viewers, native="native" in a.viewers)
+        web="web" in a.viewers, native="native" in a.viewers, layouts=a.layouts.split(","))

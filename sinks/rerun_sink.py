@@ -9,6 +9,8 @@ One recording, timeline `event_time` (event-clock time since the first event). E
 - `events` — a Transform3D moving with event time, so the newest events sit at depth 0 and older ones
   recede: the slab stays in front of the camera while the stream flows through it (the paper's
   Figure 1, animated); `slab` is a wireframe box marking it;
+- with `classes_apart=False` (live viewers), `events/points` instead: the three classes' points, their
+  class ids and the moving Transform3D in one entity, so each send is one chunk, not four;
 - `frames/<framer>` — Image (OFF black, ON white, gray background: the paper's rendering);
 - `representations/<kind>` — with a representation framer, its picture beside the frames (the time
   surface in viridis, the voxel grid's bins side by side: `framing.render.render_representation`);
@@ -20,11 +22,13 @@ to `wall_budget_hz` (points per second of wall-clock time: what a viewer must ta
 replay speed), and counts what it drops in `points_dropped`; frames and statistics always use every event.
 
 What is logged is sent every `send_every_s` of wall-clock time as one column per entity (points, slab
-transform, statistics), not as calls per packet: a viewer's cost grows with the number of chunks it
-ingests, and a live stream of 5-ms packets made 7 chunks per packet. A `live` sink also drops, at each
-send, the points more than `late_s` of event time behind the newest one (a following view shows only
-the last slab: they are the backlog a viewer that fell behind would otherwise queue), counted in
-`points_late`.
+transform, statistics; the statistics every `stats_every_s`), not as calls per packet: a viewer's cost
+grows with the number of chunks it ingests, not with their size — the web viewer takes in about 10 ms of
+chunks per frame, and under software WebGL on two loaded cores 28 chunks a second put it tens of seconds
+behind while 5 a second kept it within the send interval, at 10 or 100 k points a second alike
+(benchmarks/bench_viewer_lag.py, docs/live.md). A `live` sink also drops, at each send, the points more
+than `late_s` of event time behind the newest one (a following view shows only the last slab: they are
+the backlog a viewer that fell behind would otherwise queue), counted in `points_late`.
 
 A restarted stream (`restart()`) keeps the layout and colour table and continues the timeline after the
 previous stream's last event (plus one slab), so the two are shown one after the other, never blended.
@@ -56,10 +60,14 @@ VIEW_BACKGROUND = (14, 15, 18)
 SLAB_COLOUR = (110, 110, 110)
 NOW_COLOUR = (235, 235, 235)
 STATS_BIN_US = 10_000
+POINTS_ENTITY = "events/points"  # the three classes in one entity (classes_apart=False)
 # A live viewer (subscribe --serve/--spawn/--viewer): what it must take in stays bounded whatever the event
-# rate (benchmarks/bench_viewer_lag.py; docs/live.md): 100 k points per wall-clock second, sent four times a
-# second as one column per entity, rows of 10 ms of event time, and the points that fell 1 s behind dropped.
-LIVE_OPTIONS = {"live": True, "wall_budget_hz": 100_000.0, "send_every_s": 0.25, "time_bin_us": 10_000}
+# rate (benchmarks/bench_viewer_lag.py; docs/live.md): 100 k points per wall-clock second, the points (one
+# entity, one chunk) sent twice a second and the statistics (three chunks) once a second — 5 chunks a second
+# for the web viewer to take in —, rows of 10 ms of event time, the points that fell 1 s behind dropped, and
+# the time series showing the last 10 s (what a page redraws each frame stays bounded).
+LIVE_OPTIONS = {"live": True, "wall_budget_hz": 100_000.0, "send_every_s": 0.5, "stats_every_s": 1.0,
+                "time_bin_us": 10_000, "classes_apart": False, "series_window_s": 10.0}
 
 
 def _us(t_us) -> np.ndarray:
@@ -85,11 +93,13 @@ def slab_depth(geometry: Geometry) -> float:
 
 
 def blueprint(geometry: Geometry, slab_ms: float = 100.0, framer: str | None = None,
-              play_state: str | None = None) -> rrb.Blueprint:
+              play_state: str | None = None, series_window_s: float | None = None) -> rrb.Blueprint:
     """The default layout: 3D X-Y-T slab of the last `slab_ms`, the frame view, the time series.
 
     `play_state` "following" keeps the time cursor on the newest data (live streams, screenshots);
-    None lets the viewer choose (it plays a file from the start).
+    None lets the viewer choose (it plays a file from the start). `series_window_s`: the time series
+    show the last that many seconds before the cursor (None: the whole timeline) — a live page redraws
+    them every frame, and a whole growing history costs it more each second.
     """
     slab = rrb.VisibleTimeRange(
         TIMELINE,
@@ -102,14 +112,17 @@ def blueprint(geometry: Geometry, slab_ms: float = 100.0, framer: str | None = N
         time_ranges=slab, eye_controls=eye, line_grid=rrb.LineGrid3D(visible=False),
         background=VIEW_BACKGROUND,  # the class colours are chosen for a dark ground, in either UI theme
     )
-    series = [rrb.TimeSeriesView(origin="stats/events", name="event rate [events/s]"),
-              rrb.TimeSeriesView(origin="stats/noise_fraction", name="noise fraction")]
+    window = None if series_window_s is None else rrb.VisibleTimeRange(
+        TIMELINE, start=rrb.TimeRangeBoundary.cursor_relative(seconds=-series_window_s),
+        end=rrb.TimeRangeBoundary.cursor_relative())
+    series = [rrb.TimeSeriesView(origin="stats/events", name="event rate [events/s]", time_ranges=window),
+              rrb.TimeSeriesView(origin="stats/noise_fraction", name="noise fraction", time_ranges=window)]
     if framer is None:  # no frames to show: the time series take the column
         side = rrb.Vertical(*series)
     else:
         series.append(rrb.Tabs(
-            rrb.TimeSeriesView(origin="stats/frames/rate_hz", name="frame rate [Hz]"),
-            rrb.TimeSeriesView(origin="stats/frames/events_per_frame", name="events per frame"),
+            rrb.TimeSeriesView(origin="stats/frames/rate_hz", name="frame rate [Hz]", time_ranges=window),
+            rrb.TimeSeriesView(origin="stats/frames/events_per_frame", name="events per frame", time_ranges=window),
         ))
         frames_view = rrb.Spatial2DView(origin=f"frames/{framer}", name=f"frames ({framer})")
         if framer in REPRESENTATIONS:  # the representation beside the counts of the same window
@@ -274,6 +287,10 @@ class RerunSink:
     `play_state`: passed to the blueprint ("following" for live viewing);
     `wall_budget_hz`: most 3D points per second of wall-clock time (None: no bound);
     `send_every_s`: wall-clock time between sends (0: each batch as it comes);
+    `stats_every_s`: wall-clock time between sends of the statistics (None: with every send);
+    `series_window_s`: the time series show the last that many seconds (None: all; see `blueprint`);
+    `classes_apart`: one entity per class (toggled apart in the viewer's tree), else all points, their
+    class ids and the slab's transform in `events/points` (one chunk per send: a live viewer's cost);
     `live`: drop, at each send, points more than `late_s` (at least the slab) of event time behind the
     newest one (see the module docstring).
     """
@@ -283,15 +300,16 @@ class RerunSink:
                  framer: str | None = None, play_state: str | None = None,
                  stats_bin_us: int = STATS_BIN_US, point_radius_ui: float = 1.5,
                  wall_budget_hz: float | None = None, send_every_s: float = 0.1, live: bool = False,
-                 late_s: float = 1.0):
+                 late_s: float = 1.0, stats_every_s: float | None = None, classes_apart: bool = True,
+                 series_window_s: float | None = None):
         if slab_ms <= 0 or time_bin_us <= 0 or stats_bin_us <= 0:
             raise ValueError("slab_ms, time_bin_us and stats_bin_us must be positive")
         if point_budget_hz is not None and point_budget_hz <= 0:
             raise ValueError(f"point budget must be positive, got {point_budget_hz}")
         if wall_budget_hz is not None and wall_budget_hz <= 0:
             raise ValueError(f"wall-clock point budget must be positive, got {wall_budget_hz}")
-        if send_every_s < 0:
-            raise ValueError(f"send_every_s must be >= 0, got {send_every_s}")
+        if send_every_s < 0 or (stats_every_s is not None and stats_every_s < 0):
+            raise ValueError(f"send_every_s and stats_every_s must be >= 0, got {send_every_s}, {stats_every_s}")
         self.rec = stream
         self.slab_ms = slab_ms
         self.time_bin_us = int(time_bin_us)
@@ -302,6 +320,9 @@ class RerunSink:
         self.budget = PointBudget(point_budget_hz)
         self.wall = WallBudget(wall_budget_hz)
         self.send_every_s = float(send_every_s)
+        self.stats_every_s = self.send_every_s if stats_every_s is None else float(stats_every_s)
+        self.classes_apart = classes_apart
+        self.series_window_s = series_window_s
         self.live = live
         self.late_s = float(late_s)
         self.geometry: Geometry | None = None
@@ -316,7 +337,7 @@ class RerunSink:
         self._last_frame_end: int | None = None
         self._pending: list[tuple[np.ndarray, ...]] = []  # (t, x, y, cls) of points not sent yet
         self._pending_stats: list[tuple[np.ndarray, np.ndarray]] = []
-        self._last_send = time.monotonic()
+        self._last_send = self._last_stats_send = time.monotonic()
         if geometry is not None:
             self._start(geometry, None)
 
@@ -331,15 +352,18 @@ class RerunSink:
         self.geometry = geometry
         self.scale = slab_depth(geometry) / (self.slab_ms * 1000.0)  # depth units per µs
         rec = self.rec
-        rec.send_blueprint(blueprint(geometry, self.slab_ms, self.framer, self.play_state))
+        rec.send_blueprint(blueprint(geometry, self.slab_ms, self.framer, self.play_state, self.series_window_s))
         rec.log("/", rr.ViewCoordinates.RDF, static=True)  # x right, y down (image rows), z away
         rec.log("events", rr.AnnotationContext([
             rr.AnnotationInfo(id=int(c), label=CLASS_LABELS[c], color=CLASS_COLOURS[c]) for c in NoiseClass
         ]), static=True)
         radius = rr.Radius.ui_points(self.point_radius_ui)
-        for c, entity in CLASS_ENTITIES.items():
-            rec.log(entity, rr.Points3D.from_fields(class_ids=[int(c)], radii=[radius], show_labels=False),
-                    static=True)
+        if self.classes_apart:
+            for c, entity in CLASS_ENTITIES.items():
+                rec.log(entity, rr.Points3D.from_fields(class_ids=[int(c)], radii=[radius], show_labels=False),
+                        static=True)
+        else:
+            rec.log(POINTS_ENTITY, rr.Points3D.from_fields(radii=[radius], show_labels=False), static=True)
         self._log_slab_outline(geometry)
         rec.log("stats/noise_fraction/background", rr.SeriesLines(
             colors=[CLASS_COLOURS[NoiseClass.BACKGROUND]], names=["background activity"]), static=True)
@@ -391,7 +415,7 @@ class RerunSink:
         if self._stats is not None and self.t_last is not None:
             self._pending_stats.append(self._stats.flush(self.t_last))
             self._stats = None
-        self.send()
+        self.send(stats=True)
         self.rec.flush()
 
     def restart(self) -> None:
@@ -399,7 +423,7 @@ class RerunSink:
         and colours; its timeline continues one slab after the previous stream's last event."""
         if self._stats is not None and self.t_last is not None:  # not closed: the open bin goes out first
             self._pending_stats.append(self._stats.flush(self.t_last))
-        self.send()
+        self.send(stats=True)
         if self.t0 is not None and self.t_last is not None:
             self.offset_us += self.t_last - self.t0 + int(self.slab_ms * 1000)
         self.t0 = self.t_last = None
@@ -408,9 +432,10 @@ class RerunSink:
         self.budget = PointBudget(self.budget.rate_hz)
         self.restarts += 1
 
-    def send(self) -> None:
-        """Log what waits: every entity's rows as one column each."""
-        self._last_send = time.monotonic()
+    def send(self, stats: bool = False) -> None:
+        """Log what waits: every entity's rows as one column each (the statistics when `stats_every_s`
+        has passed, or `stats`)."""
+        self._last_send = now = time.monotonic()
         if self._pending:
             parts, self._pending = self._pending, []
             t, x, y, cls = (np.concatenate([p[k] for p in parts]) for k in range(4))
@@ -420,7 +445,8 @@ class RerunSink:
                     self.points_late += late
                     t, x, y, cls = t[late:], x[late:], y[late:], cls[late:]
             self._log_points(t, x, y, cls)
-        if self._pending_stats:
+        if self._pending_stats and (stats or now - self._last_stats_send >= self.stats_every_s):
+            self._last_stats_send = now
             parts, self._pending_stats = self._pending_stats, []
             self._log_stats(np.concatenate([e for e, _ in parts]), np.concatenate([c for _, c in parts]))
 
@@ -450,15 +476,19 @@ class RerunSink:
         change = np.flatnonzero(np.diff(bins)) + 1
         ends_idx = np.append(change, len(t)) - 1
         row_t = rel[ends_idx]
-        self.rec.send_columns(
-            "events", indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))],
-            columns=rr.Transform3D.columns(translation=np.column_stack(
-                (np.zeros(len(row_t)), np.zeros(len(row_t)), row_t * self.scale)).astype(np.float32)),
-        )
+        slab = rr.Transform3D.columns(translation=np.column_stack(
+            (np.zeros(len(row_t)), np.zeros(len(row_t)), row_t * self.scale)).astype(np.float32))
         pos = np.empty((len(t), 3), np.float32)
         pos[:, 0] = x
         pos[:, 1] = y
         pos[:, 2] = rel * -self.scale
+        self.points_logged += len(t)
+        if not self.classes_apart:  # one chunk: every class's points, their ids and the slab's transform
+            points = rr.Points3D.columns(positions=pos, class_ids=cls).partition(np.diff(ends_idx, prepend=-1))
+            self.rec.send_columns(POINTS_ENTITY, indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))],
+                                  columns=[*points, *slab])
+            return
+        self.rec.send_columns("events", indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))], columns=slab)
         for c, entity in CLASS_ENTITIES.items():
             sel = np.flatnonzero(cls == c)
             if not len(sel):
@@ -471,7 +501,6 @@ class RerunSink:
                 entity, indexes=[rr.TimeColumn(TIMELINE, duration=_us(rel[sel][last]))],
                 columns=rr.Points3D.columns(positions=pos[sel]).partition(lengths),
             )
-        self.points_logged += len(t)
 
     def _log_stats(self, ends_us: np.ndarray, counts: np.ndarray) -> None:
         if not len(ends_us):

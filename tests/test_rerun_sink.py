@@ -107,6 +107,44 @@ def test_rrd_round_trip_entities_counts_positions_timeline(tmp_path):
     assert RrdReader(path).blueprints()
 
 
+
+def test_one_entity_layout_holds_every_class_its_ids_and_the_slab_in_one_chunk_per_send(tmp_path):
+    """`classes_apart=False` (live viewers): `events/points` carries every point with its class id and
+    the slab's transform, one chunk per send; the statistics, sent less often, still cover every event."""
+    from evstream.sinks.rerun_sink import POINTS_ENTITY
+
+    ev = classified(20_000, seed=5)
+    path = tmp_path / "one.rrd"
+    sink = write(path, split(ev, 9, seed=6), point_budget_hz=None, time_bin_us=2000, classes_apart=False,
+                 send_every_s=0.0, stats_every_s=3600.0)
+    data = read_rrd(path)
+    assert not any(e in data for e in ("/events/signal", "/events/noise/background", "/events/noise/hot_pixel"))
+    chunks = [rb for t, rb in data["/" + POINTS_ENTITY] if t is not None]
+    assert len(chunks) == 9  # a send per chunk written (send_every_s=0), one chunk each
+    times, rows = column_rows(data["/" + POINTS_ENTITY], "Points3D:positions")
+    _, ids = column_rows(data["/" + POINTS_ENTITY], "Points3D:class_ids")
+    pos = np.array([p for row in rows for p in row], np.float64)
+    cls = np.array([c for row in ids for c in row])
+    assert len(pos) == len(cls) == sink.points_logged == len(ev)
+    t0, scale = int(ev.t[0]), slab_depth(G) / 100_000.0
+    order = np.lexsort((pos[:, 1], pos[:, 0], -pos[:, 2]))
+    exp_z = -(ev.t - t0) * scale
+    ref = np.lexsort((ev.y, ev.x, -exp_z))
+    np.testing.assert_array_equal(pos[order, 0], ev.x[ref])
+    np.testing.assert_array_equal(pos[order, 1], ev.y[ref])
+    np.testing.assert_array_equal(cls[order], ev.cls[ref])  # each point keeps its own class id
+    # the slab's transform is in the same rows: translation = the row's time * scale
+    t_tr, tr = column_rows(data["/" + POINTS_ENTITY], "Transform3D:translation")
+    np.testing.assert_array_equal(t_tr, times)
+    np.testing.assert_allclose([r[0][2] for r in tr], times / 1000 * scale, rtol=1e-6)
+    # statistics held back by stats_every_s go out at close: the rate still sums to every event
+    t_rate, rates = column_rows(data["/stats/events/rate_hz"], "Scalars:scalars")
+    assert len([rb for t, rb in data["/stats/events/rate_hz"] if t is not None]) == 1  # one send, at close
+    ends_us = np.sort(t_rate) // 1000 + t0
+    starts_us = t0 + (ends_us - 1 - t0) // 10_000 * 10_000
+    rates = np.array([r[0] for r in rates])[np.argsort(t_rate)]
+    assert np.sum(rates * (ends_us - starts_us) * 1e-6) == pytest.approx(len(ev), rel=1e-9)
+
 def test_statistics_use_every_event_even_when_points_are_dropped(tmp_path):
     ev = classified(30_000, seed=3)
     path = tmp_path / "b.rrd"
