@@ -337,6 +337,8 @@ class RerunSink:
         self._last_frame_end: int | None = None
         self._pending: list[tuple[np.ndarray, ...]] = []  # (t, x, y, cls) of points not sent yet
         self._pending_stats: list[tuple[np.ndarray, np.ndarray]] = []
+        self._pending_frames: list[Frame] = []  # live: frames wait for the next send, as columns
+        self._pending_frame_stats: list[tuple[int, int, float]] = []  # (t_end µs, events, rate Hz or nan)
         self._last_send = self._last_stats_send = time.monotonic()
         if geometry is not None:
             self._start(geometry, None)
@@ -445,10 +447,18 @@ class RerunSink:
                     self.points_late += late
                     t, x, y, cls = t[late:], x[late:], y[late:], cls[late:]
             self._log_points(t, x, y, cls)
-        if self._pending_stats and (stats or now - self._last_stats_send >= self.stats_every_s):
+        if self._pending_frames:
+            frames, self._pending_frames = self._pending_frames, []
+            self._send_frames(frames)
+        if (self._pending_stats or self._pending_frame_stats) and (
+                stats or now - self._last_stats_send >= self.stats_every_s):
             self._last_stats_send = now
-            parts, self._pending_stats = self._pending_stats, []
-            self._log_stats(np.concatenate([e for e, _ in parts]), np.concatenate([c for _, c in parts]))
+            if self._pending_stats:
+                parts, self._pending_stats = self._pending_stats, []
+                self._log_stats(np.concatenate([e for e, _ in parts]), np.concatenate([c for _, c in parts]))
+            if self._pending_frame_stats:
+                rows, self._pending_frame_stats = self._pending_frame_stats, []
+                self._send_frame_stats(*(np.array(col) for col in zip(*rows)))
 
     # -- logging ---------------------------------------------------------------------------------
     def _rel(self, t) -> np.ndarray:
@@ -522,6 +532,14 @@ class RerunSink:
         for frame in frames:
             if self.t0 is None:
                 self.t0 = frame.t_start
+            if self.live:  # with the next send, as columns: a chunk per entity per send, not per frame
+                rate = np.nan
+                if self._last_frame_end is not None and frame.t_end > self._last_frame_end:
+                    rate = 1e6 / (frame.t_end - self._last_frame_end)
+                self._pending_frames.append(frame)
+                self._pending_frame_stats.append((frame.t_end, frame.n_events, rate))
+                self._last_frame_end = frame.t_end
+                continue
             self.rec.set_time(TIMELINE, duration=np.timedelta64(int(self._rel(frame.t_end)), "us"))
             self.rec.log(f"frames/{self.framer or 'frames'}", rr.Image(render_frame(frame.image)))
             if getattr(frame, "data", None) is not None:  # a representation (time surface, voxel grid, ...)
@@ -531,6 +549,31 @@ class RerunSink:
                 self.rec.log("stats/frames/rate_hz", rr.Scalars(1e6 / (frame.t_end - self._last_frame_end)))
             self._last_frame_end = frame.t_end
             self.frames_logged += 1
+
+
+    def _send_frames(self, frames: list[Frame]) -> None:
+        """Frames (and the representations among them) as one Image column per entity."""
+        groups = {f"frames/{self.framer or 'frames'}": [(f, render_frame(f.image)) for f in frames]}
+        for f in frames:
+            if getattr(f, "data", None) is not None:
+                groups.setdefault(f"representations/{f.kind}", []).append((f, render_representation(f)))
+        for entity, items in groups.items():
+            images = np.stack([img for _, img in items])
+            model = "L" if images.ndim == 3 else {3: "RGB", 4: "RGBA"}[images.shape[-1]]
+            fmt = rr.components.ImageFormat(width=images.shape[2], height=images.shape[1], color_model=model,
+                                            channel_datatype="U8")
+            self.rec.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, duration=_us(
+                self._rel([f.t_end for f, _ in items])))], columns=rr.Image.columns(
+                buffer=images.reshape(len(items), -1), format=[fmt] * len(items)))
+        self.frames_logged += len(frames)
+
+    def _send_frame_stats(self, t_end: np.ndarray, n_events: np.ndarray, rate_hz: np.ndarray) -> None:
+        self.rec.send_columns("stats/frames/events_per_frame", indexes=[rr.TimeColumn(
+            TIMELINE, duration=_us(self._rel(t_end)))], columns=rr.Scalars.columns(scalars=n_events.astype(float)))
+        has = ~np.isnan(rate_hz)
+        if has.any():
+            self.rec.send_columns("stats/frames/rate_hz", indexes=[rr.TimeColumn(
+                TIMELINE, duration=_us(self._rel(t_end[has])))], columns=rr.Scalars.columns(scalars=rate_hz[has]))
 
 
 def render_frame(signed: np.ndarray) -> np.ndarray:

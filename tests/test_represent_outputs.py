@@ -50,10 +50,11 @@ def test_pictures(kind):
     assert len(np.unique(img.reshape(-1, 3), axis=0)) > 2  # not a blank picture
 
 
-def test_rerun_shows_the_time_surface_beside_the_frames(tmp_path):
+@pytest.mark.parametrize("live", [False, True])  # live: sent with the sink's sends, as Image columns
+def test_rerun_shows_the_time_surface_beside_the_frames(tmp_path, live):
     path = tmp_path / "ts.rrd"
     out = open_output(save=str(path))
-    sink = RerunSink(out.rec, geometry=G, framer="timesurface")
+    sink = RerunSink(out.rec, geometry=G, framer="timesurface", live=live)
     pipe = Pipeline([], build("framer", {"kind": "timesurface", "window_us": 10_000, "tau_us": 5000}))
     stats = pipe.run([random_stream(3, 3000, G)], [sink])
     out.finish()

@@ -235,7 +235,9 @@ def test_watermark_closes_a_quiet_bin():
     assert counts[1:].sum() == 0
 
 
-def test_frames_and_frame_statistics(tmp_path):
+@pytest.mark.parametrize("live", [False, True])
+def test_frames_and_frame_statistics(tmp_path, live):
+    """Frames as images, their statistics; a live sink sends them with its sends, one chunk per entity."""
     ev = classified(5_000, seed=5, duration_us=50_000)
     frames = []
     for i in range(5):  # 10 ms frames with known counts
@@ -246,7 +248,7 @@ def test_frames_and_frame_statistics(tmp_path):
                             n_events=100 * (i + 1), counts=counts))
     path = tmp_path / "f.rrd"
     out = open_output(save=str(path))
-    sink = RerunSink(out.rec, geometry=G, framer="fw")
+    sink = RerunSink(out.rec, geometry=G, framer="fw", live=live, send_every_s=3600.0 if live else 0.1)
     stats = RunStats()
     sink.write(Batch(ev, frames[:2], stats))
     sink.write(Batch(EventChunk.empty(G, with_cls=True), frames[2:], stats))
@@ -263,6 +265,9 @@ def test_frames_and_frame_statistics(tmp_path):
     assert sorted(r[0] for r in per_frame) == [100, 200, 300, 400, 500]
     _, rate = column_rows(data["/stats/frames/rate_hz"], "Scalars:scalars")
     assert [r[0] for r in rate] == pytest.approx([100.0] * 4)
+    if live:  # everything waited for the one send at close: a chunk per entity
+        for entity in ("/frames/fw", "/stats/frames/events_per_frame", "/stats/frames/rate_hz"):
+            assert len([t for t, _ in data[entity] if t is not None]) == 1, entity
 
 
 def test_cli_replay_save_json_counts_dropped_points(tmp_path, capsys):
