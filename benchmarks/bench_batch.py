@@ -1,10 +1,12 @@
 """Many recordings on a local Dask cluster (evstream.batch): `--jobs 2` against `--jobs 1` on a folder of
-recordings (the shipped three, copied to N files), interleaved in one run (1, 2, 2, 1) so a load that
+recordings (the shipped three, each repeated in time to EVSTREAM_BENCH_BATCH_EVENTS / N events, default 50 M
+in all), interleaved in one run (1, 2, 2, 1) so a load that
 changes meanwhile hits both; on warm workers (a folder of near-empty recordings first: imports and numba's
 cache loaded), which also gives the per-task overhead (that folder again), the cluster's start apart.
 Archive with the paper's cascade, as `evstream archive DIR/ OUT/`.
 
-Environment variables: EVSTREAM_BENCH_BATCH_N (recordings, default 20).
+One command: `python -m benchmarks batch`. Environment variables: EVSTREAM_BENCH_BATCH_N (recordings, default
+20), EVSTREAM_BENCH_BATCH_EVENTS (events in all, default 50,000,000).
 """
 
 from __future__ import annotations
@@ -22,6 +24,21 @@ from evstream.cli import task_flags
 from evstream.cli.archive import archive_file
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def _recording(src: Path, dst: str, events: int) -> int:
+    """`src` repeated one after the other in time (event times shifted) until it holds about `events`."""
+    import dataclasses
+
+    from evstream import api
+    from evstream.events import concat
+
+    base = api.read(src)
+    times = max(1, round(events / len(base)))
+    span = int(base.t[-1]) + 1
+    native.save(dst, concat([dataclasses.replace(base, t=base.t + i * span, t_end=None) for i in range(times)],
+                            base.geometry), {"repeated": times}, compress=False)
+    return len(base) * times
 
 
 def _job(folder: str, out: str, jobs: int, tiny: str) -> tuple[float, float, float, float, int]:
@@ -48,12 +65,20 @@ def _job(folder: str, out: str, jobs: int, tiny: str) -> tuple[float, float, flo
 
 def run() -> None:
     n = int(os.environ.get("EVSTREAM_BENCH_BATCH_N", "20"))
+    total = int(float(os.environ.get("EVSTREAM_BENCH_BATCH_EVENTS", "50e6")))
     shipped = sorted((ROOT / "recordings").glob("*.npz"))
     with tempfile.TemporaryDirectory(prefix="evstream-bench-batch-") as tmp:
         folder = os.path.join(tmp, "data")
         os.mkdir(folder)
+        made: dict[Path, str] = {}
         for i in range(n):
-            shutil.copy(shipped[i % len(shipped)], os.path.join(folder, f"rec{i:03d}.npz"))
+            dst = os.path.join(folder, f"rec{i:03d}.npz")
+            src = shipped[i % len(shipped)]
+            if src in made:
+                shutil.copy(made[src], dst)
+            else:
+                _recording(src, dst, total // n)
+                made[src] = dst
         tiny = os.path.join(tmp, "tiny")
         os.mkdir(tiny)
         for i in range(n):

@@ -729,3 +729,36 @@ def test_packets_lost_just_before_the_end_mark_are_counted(procs):
         session.close()
     c1 = out["cameras"]["cam1"]
     assert c1["packets"] == 2 and c1["missing"] == 3 and c1["gaps"] == 1 and c1["ended"]
+
+
+def test_one_denoise_node_per_camera_in_processes_of_their_own(procs, tmp_path):
+    """N cameras -> one router -> N denoise nodes, each a process subscribed to its camera's key only (the
+    node count chosen at start: one `subscribe evstream/CAM/events --republish` per camera) -> one reader
+    of every cleaned stream. Each node sees its camera and no other, nothing is lost, and each cleaned
+    stream is, event for event, the cascade run on that camera's recording alone."""
+    cams = {"cam0": TURNTABLE, "cam1": BAR, "cam2": ROOT / "recordings" / "ball.npz"}
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs.router(port)
+    final = procs.subscriber(port, "evstream/*/events/clean", "--denoise", "none", "--until-end", str(len(cams)),
+                             "--idle-s", "60", "--archive", str(tmp_path / "clean_{camera}.mcap"))
+    nodes = {cam: procs.subscriber(port, f"evstream/{cam}/events", "--republish", "--wait-subscribers", "10",
+                                   "--drain-s", "30", "--until-end", "--idle-s", "60")
+             for cam in cams}
+    pubs = {cam: procs.start("publish", str(path), "--key", f"evstream/{cam}/events", "--connect", ep,
+                             "--speed", "0", "--wait-subscribers", "10", "--drain-s", "30", "--json")
+            for cam, path in cams.items()}
+    sent = {cam: procs.result(p) for cam, p in pubs.items()}
+    got = {cam: procs.result(p) for cam, p in nodes.items()}
+    clean = procs.result(final)
+    assert sorted(clean["cameras"]) == sorted(cams)
+    for cam, path in cams.items():
+        n = len(_events(path)[0])
+        assert sent[cam]["events"] == n and sent[cam]["unmatched_packets"] == 0
+        assert list(got[cam]["cameras"]) == [cam]  # its own key: no other camera's packets reach it
+        mine = got[cam]["cameras"][cam]
+        assert mine["events"] == n and mine["missing"] == 0 and mine["malformed"] == 0
+        alone = _alone(path)
+        assert [mine["events_signal"], mine["events_background"], mine["events_hot_pixel"]] == alone["counts"]
+        assert clean["cameras"][cam]["events"] == mine["events_signal"] and clean["cameras"][cam]["missing"] == 0
+        assert_same_events(open_source(tmp_path / f"clean_{cam}.mcap"), alone["kept"])

@@ -11,7 +11,7 @@ import numpy as np
 from ..events import EventChunk, concat
 from ..pipeline import paced
 from .common import StopOnSignal, UsageError, add_source_flags, check_numbers, event_rate, open_recording
-from .live import DEFAULT_KEY, add_zenoh_flags, check_endpoints, session_from_args
+from .live import DEFAULT_KEY, add_zenoh_flags, check_endpoints, session_from_args, settle_memory
 
 
 def packetize(chunks, packet_us: int):
@@ -56,7 +56,8 @@ def cmd_publish(args) -> int:
         if args.wait_subscribers > 0 and not pub.wait_matching(args.wait_subscribers):
             print(f"evstream: warning: no subscriber on {args.key} after {args.wait_subscribers:g} s; "
                   "publishing anyway", file=sys.stderr)
-        t0 = time.perf_counter()
+        settle_memory()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         with StopOnSignal() as stop:
             for packet in stop.chunks(paced(packetize(source, args.packet_us), args.speed)):
                 pub.put_events(packet.t, packet.x, packet.y, packet.p, width=g.width, height=g.height)
@@ -67,12 +68,13 @@ def cmd_publish(args) -> int:
             print(f"evstream: note: subscribers still there after --drain-s {args.drain_s:g}; closing",
                   file=sys.stderr)
         pub.close()
+        cpu_s = time.process_time() - cpu0  # every thread's, Zenoh's too: publishing and draining
     finally:
         session.close()
     unmatched_packets, unmatched_events = pub.unmatched_packets, pub.unmatched_events
     summary = {"key": args.key, "packets": pub.packets, "events": pub.events, "bytes": pub.bytes,
                "unmatched_packets": unmatched_packets, "unmatched_events": unmatched_events,
-               "wall_s": wall, "events_per_s": pub.events / wall if wall > 0 else 0.0,
+               "wall_s": wall, "cpu_s": cpu_s, "events_per_s": pub.events / wall if wall > 0 else 0.0,
                "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
     if unmatched_packets:  # a router or the subscribers that went away must not look like a delivery
         print(f"evstream: warning: {unmatched_packets:,} of {pub.packets:,} packets ({unmatched_events:,} events) "

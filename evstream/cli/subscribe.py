@@ -12,7 +12,7 @@ from pathlib import Path
 from ..events import NoiseClass
 from ..framing import options as framer_options
 from .common import StopOnSignal, UsageError, add_pipeline_flags, check_numbers, geometry_flag, rerun_command
-from .live import CLEAN_KEY, add_zenoh_flags, check_endpoints, session_from_args
+from .live import CLEAN_KEY, add_zenoh_flags, check_endpoints, session_from_args, settle_memory
 from .subscriber import Camera, Status, Subscriber, print_summary, wait_readers, warm_up
 
 
@@ -71,6 +71,7 @@ def cmd_subscribe(args) -> int:
                 return stop.signum is not None or (deadline is not None and time.monotonic() > deadline)
 
             warm_up(args)
+            settle_memory()
             if args.republish and args.wait_subscribers > 0:
                 wait_readers(session, args.republish.replace("{camera}", "*"), args.wait_subscribers)
             sub = ZenohSubscription(args.keyexpr, session=session, flow=flow, depth=args.depth,
