@@ -36,9 +36,10 @@ def repeat_recording(src: Path, dst: Path, times: int) -> int:
     """`src` played `times` times one after the other (event times shifted), as one native recording."""
     import dataclasses
 
+    from evstream.sources import native
+
     from evstream import api
     from evstream.events import concat
-    from evstream.sources import native
 
     base = api.read(src)
     span = int(base.t[-1]) + 1
@@ -55,11 +56,19 @@ def cpu_s(pid: int) -> float:
 
 
 def finish(p) -> tuple[str, float]:
-    """Read `p`'s stdout to the end and reap it: (stdout, its total CPU s from wait4)."""
+    """Read `p`'s stdout and stderr to the end and reap it: (stdout, its total CPU s from wait4); a process
+    that failed raises with its stderr."""
+    import threading
+
+    err: list[str] = []
+    reader = threading.Thread(target=lambda: err.append(p.stderr.read()))
+    reader.start()
     out = p.stdout.read()
+    reader.join()
     _, status, usage = os.wait4(p.pid, 0)
     p.returncode = os.waitstatus_to_exitcode(status)
-    p.stderr.close()
+    if p.returncode not in (0, -15):
+        raise RuntimeError(f"{p.args[3:6]} exited with {p.returncode}: {err[0][-2000:]}")
     return out, usage.ru_utime + usage.ru_stime
 
 

@@ -5,6 +5,7 @@ mid-job; a re-run that skips what is done; a bad recording reported while the ot
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -182,3 +183,33 @@ def test_several_recordings_need_a_folder(dataset, tmp_path, capsys):
     assert main(["archive", str(dataset / "bar.npz"), str(dataset / "ball.npz"), str(tmp_path / "x.mcap")]) == 2
     assert "go to a folder" in capsys.readouterr().err
     assert main(["archive", str(dataset / "bar.npz"), str(tmp_path / "a.txt")]) == 2  # the one-file form's error
+
+
+def test_frames_many_writes_what_the_one_file_command_writes_and_a_rerun_skips(client, dataset, tmp_path, capsys):
+    """`frames DIR/ --out OUT/`: each recording's PNGs in OUT/ITS-PATH/ byte for byte those of the one-file
+    command, its statistics in OUT/ITS-PATH.frames.json equal to the one-file --json's; `--set` reaches
+    the tasks; a re-run skips every recording, --force redoes them."""
+    out = tmp_path / "out"
+    flags = ["--framer", "fw", "--window-us", "40000", "--end-us", "200000", "--denoise", "paper",
+             "--set", "coarse.window_us=8000", "--quiet"]
+    argv = ["frames", str(dataset / "synthetic"), "--out", str(out), "--scheduler", client.scheduler.address, *flags]
+    assert main(argv) == 0
+    assert "3 done, 0 skipped" in capsys.readouterr().out
+    for rec in sorted((dataset / "synthetic").glob("*.npz")):
+        one = tmp_path / "one" / rec.stem
+        assert main(["frames", str(rec), "--out", str(one), "--json", *flags]) == 0
+        want = json.loads(capsys.readouterr().out)["results"]
+        got = json.loads((out / f"{rec.stem}.frames.json").read_text())["results"]
+        assert [r["frames"] for r in got] == [r["frames"] for r in want] and got[0]["frames"] > 0
+        assert got[0]["events_signal"] == want[0]["events_signal"] < got[0]["events_in"]  # the cascade ran
+        assert got[0]["mean_events"] == want[0]["mean_events"]
+        pngs = sorted(p.name for p in one.glob("*.png"))
+        assert pngs and pngs == sorted(p.name for p in (out / rec.stem).glob("*.png"))
+        for name in pngs:
+            assert (out / rec.stem / name).read_bytes() == (one / name).read_bytes()
+    assert main(argv) == 0
+    assert "0 done, 3 skipped" in capsys.readouterr().out
+    assert main([*argv, "--force"]) == 0
+    assert "3 done, 0 skipped" in capsys.readouterr().out
+    assert main(["frames", str(dataset / "synthetic"), *flags]) == 2  # several recordings need --out
+    assert "--out FOLDER" in capsys.readouterr().err

@@ -47,8 +47,14 @@ def many(sources: list[str], out: str, one_file_suffixes: tuple[str, ...]) -> bo
 
 def flags_of(args) -> dict:
     """The one-file function's flags from parsed arguments, as plain values (what a task carries)."""
-    return {k: v for k, v in vars(args).items()
-            if k not in NOT_FORWARDED and (v is None or isinstance(v, str | int | float | bool))}
+    return {k: v for k, v in vars(args).items() if k not in NOT_FORWARDED and _plain(v)}
+
+
+def _plain(v) -> bool:
+    """None, a str/int/float/bool, or a list of them (`--set` repeated): what a task may carry."""
+    if isinstance(v, list | tuple):
+        return all(_plain(x) and not isinstance(x, list | tuple) for x in v)
+    return v is None or isinstance(v, str | int | float | bool)
 
 
 def run_batch(args, work: Callable, suffix: str) -> int:

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 from pathlib import Path
 
+from ..batch import GLOB_MAGIC
 from ..events import NoiseClass
 from ..framing import options as framer_options
 from ..framing.render import STYLES
 from ..pipeline import build
+from ..safe_write import AtomicOutput
+from .batch import add_batch_flags, run_batch
 from .common import (
     STORED_CLASSES_NOTE,
     Progress,
@@ -23,8 +28,8 @@ from .common import (
 )
 
 
-def cmd_frames(args) -> int:
-    """Frame a recording with one or more framers; print the paper's frame statistics, write PNGs."""
+def frames_one(args) -> list[dict]:
+    """The one-file command without its printing: one row of statistics per framer."""
     from ..framing.arrays import ArrayWriter
     from ..framing.render import PngWriter
     from ..framing.represent import REPRESENTATIONS
@@ -70,6 +75,22 @@ def cmd_frames(args) -> int:
                      "files": "npz" if kind in REPRESENTATIONS else "png",
                      "events_dropped": stats.events_dropped, "reports": pipeline.reports(),
                      "created_folder": created or None})
+    return rows
+
+
+SUMMARY_SUFFIX = ".frames.json"  # a recording's statistics, written last: its frames are complete
+
+
+def cmd_frames(args) -> int:
+    """Frame a recording with one or more framers; print the paper's frame statistics, write PNGs. Several
+    recordings, folders or globs with --out FOLDER: one task each on a Dask cluster (evstream.batch), each
+    recording's frames in OUT/ITS-PATH/ and its statistics in OUT/ITS-PATH.frames.json."""
+    if len(args.source) > 1 or any(os.path.isdir(s) or GLOB_MAGIC & set(s) for s in args.source):
+        if not args.out:
+            raise UsageError("several recordings: --out FOLDER (each recording's frames in a folder of its own)")
+        return run_batch(args, frames_file, SUMMARY_SUFFIX)
+    args.source = args.source[0]
+    rows = frames_one(args)
     if args.json:
         print(json.dumps({"source": args.source, "results": rows}))
         return 0
@@ -92,7 +113,8 @@ def cmd_frames(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("frames", help="frame a recording; print frame rate and events per frame, write PNGs")
-    p.add_argument("source")
+    p.add_argument("source", nargs="+", metavar="SOURCE",
+                   help="a recording; or several, folders and globs (with --out FOLDER: evstream.batch)")
     add_source_flags(p)
     add_pipeline_flags(p)
     framer_options.add_framer_flags(p, default="adaptive", several=True)
@@ -102,4 +124,19 @@ def add_parser(sub) -> None:
                    help="PNG rendering: paper (gray, ON white, OFF black), signed, or a colour map")
     p.add_argument("--json", action="store_true", help="print the statistics as JSON")
     add_quiet_flag(p)
+    add_batch_flags(p)
     p.set_defaults(func=cmd_frames)
+
+
+def frames_file(source: str, out: str, **flags) -> dict:
+    """One task of a batch (on a Dask worker): `source`'s frames into OUT's folder (OUT without
+    .frames.json), then its statistics into OUT, whole or not at all: OUT exists only once every frame
+    was written, which is what makes a re-run skip the recording."""
+    folder = out[: -len(SUMMARY_SUFFIX)]
+    args = argparse.Namespace(**{**flags, "source": source, "out": folder, "quiet": True})
+    rows = frames_one(args)
+    summary = {"source": source, "out": folder, "results": rows, "events_in": rows[0]["events_in"],
+               "events_signal": rows[0]["events_signal"], "frames": sum(r["frames"] for r in rows)}
+    with AtomicOutput(Path(out), [source]) as part:
+        Path(part).write_text(json.dumps(summary))
+    return summary
