@@ -85,7 +85,8 @@ def cmd_frames(args) -> int:
     """Frame a recording with one or more framers; print the paper's frame statistics, write PNGs. Several
     recordings, folders or globs with --out FOLDER: one task each on a Dask cluster (evstream.batch), each
     recording's frames in OUT/ITS-PATH/ and its statistics in OUT/ITS-PATH.frames.json."""
-    if len(args.source) > 1 or any(os.path.isdir(s) or GLOB_MAGIC & set(s) for s in args.source):
+    # a folder alone without --out keeps the one-file form's error ("DIR: is a directory, not a recording")
+    if len(args.source) > 1 or any(GLOB_MAGIC & set(s) or (args.out and os.path.isdir(s)) for s in args.source):
         if not args.out:
             raise UsageError("several recordings: --out FOLDER (each recording's frames in a folder of its own)")
         return run_batch(args, frames_file, SUMMARY_SUFFIX)
