@@ -133,14 +133,20 @@ def score(ws: Path) -> dict:
     return {"counts": counts, "score": killed / total if total else None, "survivors": survivors}
 
 
-def run(name: str) -> dict:
-    ws = workspace(name)
+def run(name: str, only: list[str] = ()) -> dict:
+    """Mutate and test module `name`; with `only` (mutant-name globs, e.g. '*.x_accumulate__*'), just
+    those, in the copy left by an earlier run if there is one (mutmut keeps each mutant's result)."""
+    ws = OUT / name
+    if only and (ws / "mutants").is_dir():
+        shutil.copytree(ROOT / "tests", ws / "tests", dirs_exist_ok=True, ignore=IGNORE)  # new tests too
+    else:
+        ws = workspace(name)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(ws / ".numba_cache"), PYTHONHASHSEED="0",
                HYPOTHESIS_PROFILE=os.environ.get("HYPOTHESIS_PROFILE", "mutation"))
     env.pop("NUMBA_DISABLE_JIT", None)
     children = os.environ.get("MUTATION_CHILDREN", "2")
-    with open(ws / "mutmut.log", "w") as log:
-        subprocess.run([sys.executable, "-m", "mutmut", "run", "--max-children", children], cwd=ws, env=env,
+    with open(ws / "mutmut.log", "a") as log:
+        subprocess.run([sys.executable, "-m", "mutmut", "run", "--max-children", children, *only], cwd=ws, env=env,
                        stdout=log, stderr=subprocess.STDOUT)
     result = score(ws)
     (ws / "score.json").write_text(json.dumps(result, indent=1))
@@ -161,13 +167,13 @@ def dry(name: str) -> int:
 def main(argv: list[str]) -> int:
     if argv[:1] == ["--dry"]:
         return max(dry(n) for n in argv[1:])
+    only = []
+    if "--only" in argv:  # python tests/mutation.py codecs --only '*.x__decode_kernel__*' ...
+        only = argv[argv.index("--only") + 1:]
+        argv = argv[:argv.index("--only")]
     names = [n for a in (argv or list(TARGETS)) for n in ALIASES.get(a, [a])]
-    unknown = [n for n in names if n not in TARGETS]
-    if unknown:
-        print(f"unknown module {unknown}; choose from {', '.join(TARGETS)}", file=sys.stderr)
-        return 2
     for name in names:
-        r = run(name)
+        r = run(name, only)
         c = r["counts"]
         pct = "n/a" if r["score"] is None else f"{100 * r['score']:.1f} %"
         print(f"{name}: {pct} killed ({c.get('killed', 0)} killed, {c.get('timeout', 0)} timeout, "

@@ -26,18 +26,20 @@ NEVER_US = 1 << 62  # a deadline no stream reaches
 def accumulate(x, y, p, cls, use_cls, a, b, counts, width, hw):
     """Add the counted events [a, b) to the flat counts [p][y][x] (saturating); return how many.
 
-    The caller finds b, the frame's end, by binary search: a loop with no time test runs ~1.5x faster."""
+    The caller finds b, the frame's end, by binary search: a loop with no time test runs ~1.5x faster.
+    The flat index is widened to intp explicitly: what numba does anyway, and what keeps it right as
+    plain Python (tests/mutation.py), where a uint8 times an int stays uint8 under NumPy 2."""
     if use_cls:
         added = 0
         for i in range(a, b):
             if cls[i] == 0:
-                f = p[i] * hw + y[i] * width + x[i]
+                f = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
                 if counts[f] != COUNT_MAX:
                     counts[f] += 1
                 added += 1
         return added
     for i in range(a, b):
-        f = p[i] * hw + y[i] * width + x[i]
+        f = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
         if counts[f] != COUNT_MAX:
             counts[f] += 1
     return b - a
@@ -59,7 +61,7 @@ def fn_run(t, x, y, p, cls, use_cls, i, counts, width, hw, n_have, n_target, fir
         if not use_cls or cls[i] == 0:
             if n_have == 0:
                 first_t = ti
-            f = p[i] * hw + y[i] * width + x[i]
+            f = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
             if counts[f] != COUNT_MAX:
                 counts[f] += 1
             n_have += 1

@@ -32,7 +32,7 @@ INITIAL_BUFFER_EVENTS = 1 << 14
 def flat_index(x, y, p, a, b, width, hw, out, at):
     """out[at + j] = the flat count index p·H·W + y·W + x of event a + j, for the events [a, b)."""
     for i in range(a, b):
-        out[at + i - a] = p[i] * hw + y[i] * width + x[i]
+        out[at + i - a] = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
 
 
 @njit(cache=True, nogil=True)
@@ -40,7 +40,7 @@ def flat_index_of(x, y, p, idx, width, hw, out, at):
     """out[at + j] = the flat count index of event idx[j]."""
     for j in range(len(idx)):
         i = idx[j]
-        out[at + j] = p[i] * hw + y[i] * width + x[i]
+        out[at + j] = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
 
 
 @njit(cache=True, nogil=True)
