@@ -213,3 +213,29 @@ def test_frames_many_writes_what_the_one_file_command_writes_and_a_rerun_skips(c
     assert "3 done, 0 skipped" in capsys.readouterr().out
     assert main(["frames", str(dataset / "synthetic" / "*.npz"), *flags]) == 2  # several recordings need --out
     assert "--out FOLDER" in capsys.readouterr().err
+
+
+def test_eval_many_gives_the_rows_of_the_one_process_eval_and_a_rerun_skips(client, dataset, tmp_path, capsys):
+    """`eval DIR/ --out OUT/`: a task per recording; its rows (OUT/PATH.eval.json) are those the one-process
+    `eval` computes for it; the tables and --json FILE cover every recording; a re-run skips them all."""
+    out = tmp_path / "out"
+    flags = ["--ratios", "0.5", "--rates-hz", "--seeds", "1", "--methods", "baf,paper", "--min-duration-s", "0.1",
+             "--quiet"]
+    argv = ["eval", str(dataset / "synthetic"), "--out", str(out), "--scheduler", client.scheduler.address,
+            "--json", str(tmp_path / "rows.json"), *flags]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "3 done, 0 skipped" in printed and "all recordings (mean)" in printed
+    many = json.loads((tmp_path / "rows.json").read_text())
+    assert main(["eval", *sorted(map(str, (dataset / "synthetic").glob("*.npz"))), "--json",
+                 str(tmp_path / "one.json"), *flags]) == 0
+    capsys.readouterr()
+    one = json.loads((tmp_path / "one.json").read_text())
+    key = lambda r: (r["recording"], r["method"], r["condition"])  # noqa: E731
+    assert len(one) == 6 and sorted(many, key=key) == sorted(one, key=key)
+    assert sorted(p.name for p in out.glob("*.eval.json")) == ["ball.eval.json", "bar.eval.json",
+                                                                "turntable.eval.json"]
+    assert main(argv) == 0
+    assert "0 done, 3 skipped" in capsys.readouterr().out
+    assert main(["eval", str(dataset / "synthetic"), "--out", str(out), "--methods", "learned", "--quiet"]) == 2
+    assert "leave-one-recording-out" in capsys.readouterr().err

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 from pathlib import Path
 
-from .. import api, noise, synth
+from .. import api, batch, noise, synth
 from ..events import EventError, Geometry
+from ..safe_write import AtomicOutput
+from .batch import _warm, add_batch_flags, table
 from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note
 
 DEFAULT_NOISE_RATIO = 0.5  # what `make recordings` and the README use
@@ -57,6 +60,8 @@ def cmd_eval(args) -> int:
                     Path(out).unlink()
             except OSError as e:
                 raise OSError(f"{flag} {out}: cannot write there: {e.strerror or e}") from None
+    if args.out:
+        return _eval_many(args)
     paths = list(args.recordings) or sorted(str(p) for p in Path("recordings").glob("*.npz"))
     if not paths and not args.real:
         raise UsageError(f"no recording to evaluate: none given and no recordings/*.npz in {Path.cwd()}; "
@@ -98,6 +103,85 @@ def cmd_eval(args) -> int:
             print("evstream eval: matplotlib is not installed; no ROC plot (pip install matplotlib)",
                   file=sys.stderr)
     return 0
+
+
+EVAL_SUFFIX = ".eval.json"  # a recording's result rows, written whole: a re-run skips the recording
+NOT_A_NUMBER_OK = {"noise_ratio", "ba_rate_hz"}  # None there is a value, not a NaN sent as JSON null
+
+
+def _eval_many(args) -> int:
+    """`eval SOURCE... --out FOLDER`: one task per recording on a Dask cluster (evstream.batch), each
+    recording's rows in OUT/ITS-PATH.eval.json; then the tables over every recording's rows."""
+    from .. import evaluation
+
+    methods = args.methods.split(",") if args.methods else [m for m in evaluation.METHODS
+                                                            if m not in evaluation.TRAINED]
+    if set(methods) & set(evaluation.TRAINED):
+        raise UsageError("--methods learned: scored leave-one-recording-out, a model per recording trained on "
+                         "all the others; run it without --out (one process)")
+    if args.no_reference or args.roc:
+        raise UsageError("--out FOLDER (a task per recording) takes neither --no-reference nor --roc")
+    if args.jobs is not None and (args.jobs < 1 or args.scheduler):
+        raise UsageError(f"--jobs {args.jobs}: at least 1, and not with --scheduler")
+    sources = list(args.recordings) or ["recordings/"]
+    try:
+        tasks = batch.plan(sources + ([args.real] if args.real else []), args.out, EVAL_SUFFIX)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    params = {"methods": ",".join(methods), "ratios": list(args.ratios), "rates_hz": list(args.rates_hz),
+              "seeds": args.seeds, "tune": args.tune, "min_duration_s": args.min_duration_s}
+    progress = Progress(quiet=args.quiet, desc="eval ", unit="recordings", delay_s=0.5)
+
+    def on_result(r, done, total):
+        if r.status == "failed":
+            print(f"evstream eval: {r.source}: {r.error}", file=sys.stderr, flush=True)
+        progress.update(done, total)
+
+    try:
+        results = batch.run_many(tasks, eval_file, params, jobs=args.jobs, scheduler=args.scheduler,
+                                 force=args.force, on_result=on_result,  # each worker's kernels loaded once
+                                 warm=functools.partial(_warm, eval_file, EVAL_SUFFIX, {**params, "min_duration_s": 0}))
+    finally:
+        progress.done()
+    rows = []
+    for r in results:
+        if r.status != "failed":
+            got = json.loads(Path(r.out).read_text())
+            if got["note"]:
+                print(f"evstream eval: skipping {r.source}: {got['note']}", file=sys.stderr)
+            rows += [{k: float("nan") if v is None and k not in NOT_A_NUMBER_OK else v for k, v in row.items()}
+                     for row in got["rows"]]
+    if rows:
+        print(evaluation.markdown(rows, tune=args.tune) if args.markdown else evaluation.report(rows, tune=args.tune))
+    print(table(results))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(evaluation.as_json_rows(rows), indent=1))
+        print(f"wrote {args.json} ({len(rows)} rows)")
+    return 1 if any(r.status == "failed" for r in results) else 0
+
+
+def eval_file(source: str, out: str, *, methods: str, ratios, rates_hz, seeds: int, tune: bool,
+              min_duration_s: float, **_) -> dict:
+    """One task of `eval --out` (on a Dask worker): every method on `source` under every condition and
+    seed; its rows (and why there are none: too short) into `out`, whole or not at all."""
+    from .. import evaluation
+
+    note = ""
+    try:
+        events = api.read(source)
+    except (EventError, ValueError) as e:
+        raise ValueError(f"unreadable: {e}") from None
+    if events.duration_us * 1e-6 < min_duration_s:
+        note, rows = f"{events.duration_us * 1e-6:.3f} s is shorter than --min-duration-s", []
+    else:
+        conditions = [evaluation.Condition(noise_ratio=r) for r in ratios] + [
+            evaluation.Condition(ba_rate_hz=r) for r in rates_hz]
+        rows = evaluation.run({Path(source).stem: events}, conditions, range(seeds), methods.split(","), tune=tune)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    with AtomicOutput(Path(out), [source]) as part:
+        Path(part).write_text(json.dumps({"source": source, "note": note, "rows": evaluation.as_json_rows(rows)}))
+    return {"events": len(events), "rows": len(rows)}
 
 
 def _no_reference(recordings: dict, methods: list[str]) -> int:
@@ -172,7 +256,8 @@ def add_synth_parser(sub) -> None:
 
 def add_eval_parser(sub) -> None:
     p = sub.add_parser("eval", help="inject labelled noise, run every denoiser, print the paper's tables")
-    p.add_argument("recordings", nargs="*", help="recordings (default: recordings/*.npz)")
+    p.add_argument("recordings", nargs="*", help="recordings (default: recordings/*.npz); with --out also folders "
+                                                 "and globs")
     p.add_argument("--real", metavar="DIR", help="also every readable recording in DIR")
     p.add_argument("--methods", help="comma-separated (default: all)")
     p.add_argument("--ratios", type=float, nargs="*", default=[0.1, 0.2, 0.5, 1.0, 1.5, 2.0],
@@ -189,5 +274,8 @@ def add_eval_parser(sub) -> None:
     p.add_argument("--roc-condition", help="noise condition of the ROC plot, e.g. 100%% or 3Hz (default 100%%)")
     p.add_argument("--markdown", action="store_true",
                    help="print the mean over recordings as Markdown tables (docs/evaluation.md's, docs/generated.py)")
+    p.add_argument("--out", metavar="FOLDER", help="a task per recording on a Dask cluster (docs/scale.md), its rows "
+                                                    "in FOLDER/PATH.eval.json; a re-run skips what is done")
     add_quiet_flag(p)
+    add_batch_flags(p)
     p.set_defaults(func=cmd_eval)
