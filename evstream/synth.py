@@ -197,8 +197,8 @@ def _chunk(parts, geometry, t_end):
 # tanh(x) is exactly ±1 for |x| >= SATURATED, sin(a - b) = sin a cos b - cos a sin b with sin a, cos a kept
 # per pixel, 0.5 + 0.5 tanh(x) = 1 / (1 + e^-2x). They skip, exactly, what cannot make an event: a pixel
 # whose value cannot reach either threshold before the scene has moved enough is not looked at again
-# until then (turntable); a column whose value lies between every row's thresholds is passed over (bar);
-# a value is only logged when it is near a threshold (ball). Where a crossing needs the value of the
+# until then (turntable, ball); a column whose value lies between every row's thresholds is passed over
+# (bar); a value is only logged when it is near a threshold. Where a crossing needs the value of the
 # previous step, that value is computed again from that step's parameters: the same bits.
 SATURATED = 20.0  # tanh(20) = 1 - 8e-18 rounds to 1.0 in float64
 
@@ -339,19 +339,21 @@ def _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, box, ste
 
 @njit(cache=True, nogil=True, inline="always")
 def _ball_value(x, y, cx, cy, radius, cos_spin, sin_spin, background):
-    """(off the ball, the argument of the log, e^-pattern, e^-2edge) of a ball pixel: sin(3θ + spin) from
-    (dx + i dy)^3 / r^3. Off the ball its value is the static texture's (log_background), the rest is not
-    computed; where the edge is saturated, e^-2edge is its largest value there."""
+    """(off the ball, the argument of the log, e^-pattern, e^-2edge, r, sin(4r/R)) of a ball pixel:
+    sin(3θ + spin) from (dx + i dy)^3 / r^3. Off the ball its value is the static texture's
+    (log_background) and the rest is not computed; where the edge is saturated, e^-2edge is its largest
+    value there."""
     dx, dy = x - cx, y - cy
     r = np.sqrt(dx * dx + dy * dy)
     if 2.0 * (radius - r) <= -SATURATED:
-        return True, 0.0, 1.0, EDGE_OFF
+        return True, 0.0, 1.0, EDGE_OFF, r, 1.0
     if r > 0.0:
         c, s = dx / r, dy / r
     else:
         c, s = 1.0, 0.0  # arctan2(0, 0) = 0
     sin3, cos3 = s * (3.0 * c * c - s * s), c * (c * c - 3.0 * s * s)
-    e_pattern = np.exp(-(10.0 * (sin3 * cos_spin + cos3 * sin_spin) * np.sin(r / radius * 4.0)))
+    ring = np.sin(r / radius * 4.0)
+    e_pattern = np.exp(-(10.0 * (sin3 * cos_spin + cos3 * sin_spin) * ring))
     patches = 1.0 / (1.0 + e_pattern)
     edge = 2.0 * (radius - r)
     if edge >= SATURATED:
@@ -359,7 +361,7 @@ def _ball_value(x, y, cx, cy, radius, cos_spin, sin_spin, background):
     else:
         e_edge = np.exp(-(2.0 * edge))
         inside = 1.0 / (1.0 + e_edge)
-    return False, background * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05, e_pattern, e_edge
+    return False, background * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05, e_pattern, e_edge, r, ring
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -389,21 +391,35 @@ def _ball_stays(off, e_pattern, e_edge, background, grow_pattern, grow_edge, v_l
 REACH_PX = 0.1 * 2.0 ** np.arange(-8, 11)  # the travels a ball pixel may be given (REACH_PX[-1] = 102 px)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _pattern_rate(r, ring, radius, d):
+    """A bound on the gradient of the ball's pattern argument A = 10 sin(3θ + spin) sin(4r/R), the spin's
+    share included, anywhere within `d` px of a pixel at radius r with sin(4r/R) = ring: radially
+    10 (4/R) |cos(4ρ/R)|, around 30 |sin(4ρ/R)| / ρ (<= 30 * 4/R), the spin (10/R) |sin(4ρ/R)| per px of
+    x travel, with |sin|, |cos| growing by at most 4d/R over ρ in [r - d, r + d]."""
+    u = 4.0 / radius
+    grow = u * d
+    s = min(1.0, abs(ring) + grow)
+    c = min(1.0, np.sqrt(max(0.0, 1.0 - ring * ring)) + grow)
+    around = 30.0 * u if r <= d else min(30.0 * u, 30.0 * s / (r - d))
+    return np.sqrt((10.0 * u * c) ** 2 + around * around) + 10.0 / radius * s
+
+
 @njit(cache=True, nogil=True)
-def _ball_reach(off, e_pattern, e_edge, background, grow, k, v_lo, v_hi):
-    """The index into REACH_PX of the farthest travel of the ball this pixel stays safe for, from the last
-    answer `k`: up while it stays safe, down by two while not; -1 where none is (look again next step).
-    `grow[k]` = (e^(pattern_rate * d), e^(4 d)) for d = REACH_PX[k]: over a travel d the pattern argument
-    moves by at most pattern_rate * d (its gradient is at most 126.5 / R, the spin's share 10 / R) and
-    the edge value by 2 d."""
-    if _ball_stays(off, e_pattern, e_edge, background, grow[k, 0], grow[k, 1], v_lo, v_hi):
-        while k + 1 < len(grow) and _ball_stays(off, e_pattern, e_edge, background, grow[k + 1, 0], grow[k + 1, 1],
-                                                v_lo, v_hi):
-            k += 1
-        return k
-    k -= 2
+def _ball_reach(off, e_pattern, e_edge, r, ring, background, radius, edge_grow, k, v_lo, v_hi):
+    """The index into REACH_PX of a travel of the ball this pixel stays safe for, from the last answer `k`:
+    one up if that is safe (a pixel is looked at often: no need to climb further at once), else `k` if
+    safe, else down by two until safe; -1 where none is (look again next step). Over a travel d the pattern
+    argument moves by at most `_pattern_rate` * d, the edge value by 2 d (edge_grow[k] = e^(4 d))."""
+    if k + 1 < len(edge_grow):
+        d = REACH_PX[k + 1]
+        if _ball_stays(off, e_pattern, e_edge, background, np.exp(_pattern_rate(r, ring, radius, d) * d * (1 + 1e-9)),
+                       edge_grow[k + 1], v_lo, v_hi):
+            return k + 1
     while k >= 0:
-        if _ball_stays(off, e_pattern, e_edge, background, grow[k, 0], grow[k, 1], v_lo, v_hi):
+        d = REACH_PX[k]
+        if _ball_stays(off, e_pattern, e_edge, background, np.exp(_pattern_rate(r, ring, radius, d) * d * (1 + 1e-9)),
+                       edge_grow[k], v_lo, v_hi):
             return k
         k -= 2
     return -1
@@ -414,15 +430,19 @@ def _in_box(box, y, x):
     return box[0] <= y < box[1] and box[2] <= x < box[3]
 
 
+V_PREV, V_STEP, V_LO, V_HI, REACH, BG, LOG_BG = range(7)  # a ball pixel's state, side by side in memory
+
+
 @njit(cache=True, nogil=True)
-def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, travel, radius, grow, background, log_background, px,
-              state, step_us, refractory_us, step_cap, out, n):
+def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, travel, radius, edge_grow, px, wake, state, step_us,
+              refractory_us, step_cap, out, n):
     """Steps s0..s1-1 of the ball over each step's box (per-step arrays are indexed by step). A pixel is
-    looked at on its wake-up step only: until the ball has travelled the distance `_ball_fits` allows, it
+    looked at on its wake-up step only: until the ball has travelled the distance `_ball_reach` allows, it
     cannot cross. Where a crossing needs the pixel's value at its previous step in a box, that step is
-    found and its value computed again."""
+    found and its value computed again. `state[y, x]`: the argument of its log when last looked at (-1 off
+    the ball), that step (-1: never), its thresholds as bounds on that argument, its REACH_PX index, the
+    texture and its log."""
     level, ref, thr_on, thr_off, last_t = px
-    v_prev, v_step, v_lo, v_hi, wake, reach = state
     cap = len(out[0])
     for s in range(s0, s1):
         if n + step_cap > cap:
@@ -433,33 +453,36 @@ def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, travel, radius, grow, b
             for x in range(boxes[s, 2], boxes[s, 3]):
                 if wake[y, x] > s:
                     continue
-                bg = background[y, x]
-                off, v, e_pattern, e_edge = _ball_value(x, y, cx[s], cy[s], radius, cos_spin[s], sin_spin[s], bg)
+                st = state[y, x]
+                bg = st[BG]
+                off, v, e_pattern, e_edge, r, ring = _ball_value(x, y, cx[s], cy[s], radius, cos_spin[s], sin_spin[s],
+                                                                 bg)
                 if off:
-                    crosses = _crosses(log_background[y, x], ref[y, x], thr_on[y, x], thr_off[y, x])
+                    crosses = _crosses(st[LOG_BG], ref[y, x], thr_on[y, x], thr_off[y, x])
                 else:
-                    crosses = not v_lo[y, x] < v < v_hi[y, x] and _crosses(np.log(v), ref[y, x], thr_on[y, x],
-                                                                             thr_off[y, x])
+                    crosses = not st[V_LO] < v < st[V_HI] and _crosses(np.log(v), ref[y, x], thr_on[y, x],
+                                                                       thr_off[y, x])
                 if crosses:
-                    if v_step[y, x] < 0:  # never in a box before: the numpy start
+                    if st[V_STEP] < 0:  # never in a box before: the numpy start
                         a = level[y, x]
                     else:
                         q = s - 1
-                        while q > v_step[y, x] and not _in_box(boxes[q], y, x):
+                        while q > st[V_STEP] and not _in_box(boxes[q], y, x):
                             q -= 1  # the pixel's last step in a box (the reference's `level`)
-                        if q == v_step[y, x]:
-                            a = log_background[y, x] if v_prev[y, x] < 0.0 else np.log(v_prev[y, x])
+                        if q == st[V_STEP]:
+                            a = st[LOG_BG] if st[V_PREV] < 0.0 else np.log(st[V_PREV])
                         else:
-                            o, u, _, _ = _ball_value(x, y, cx[q], cy[q], radius, cos_spin[q], sin_spin[q], bg)
-                            a = _ball_log(o, u, log_background[y, x])
-                    n = _cross(a, _ball_log(off, v, log_background[y, x]), y, x, ref, thr_on, thr_off, last_t, t_prev,
+                            o, u, _, _, _, _ = _ball_value(x, y, cx[q], cy[q], radius, cos_spin[q], sin_spin[q], bg)
+                            a = _ball_log(o, u, st[LOG_BG])
+                    n = _cross(a, _ball_log(off, v, st[LOG_BG]), y, x, ref, thr_on, thr_off, last_t, t_prev,
                                step_us, refractory_us, x, y, out, n, limit)
-                    v_lo[y, x] = np.exp(ref[y, x] - thr_off[y, x] + MARGIN)
-                    v_hi[y, x] = np.exp(ref[y, x] + thr_on[y, x] - MARGIN)
-                v_prev[y, x] = -1.0 if off else v
-                v_step[y, x] = s
-                k = _ball_reach(off, e_pattern, e_edge, bg, grow, reach[y, x], v_lo[y, x], v_hi[y, x])
-                reach[y, x] = max(k, 0)
+                    st[V_LO] = np.exp(ref[y, x] - thr_off[y, x] + MARGIN)
+                    st[V_HI] = np.exp(ref[y, x] + thr_on[y, x] - MARGIN)
+                st[V_PREV] = -1.0 if off else v
+                st[V_STEP] = s
+                k = _ball_reach(off, e_pattern, e_edge, r, ring, bg, radius, edge_grow, int(st[REACH]), st[V_LO],
+                                st[V_HI])
+                st[REACH] = max(k, 0)
                 wake[y, x] = _wake(travel, s, s, 1, REACH_PX[k] * (1.0 - 1e-9) - 1e-9) if k >= 0 else s + 1
     return n, s1
 
@@ -601,12 +624,11 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
     def runner(px, model):
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
         background = texture(xx, yy)
-        log_background = _log(background)
-        shape = background.shape
-        state = (np.zeros(shape), np.full(shape, -1, np.int64), np.exp(px[1] - px[3] + MARGIN),
-                 np.exp(px[1] + px[2] - MARGIN), np.zeros(shape, np.int64), np.full(shape, 8, np.int64))
-        with np.errstate(over="ignore"):  # e^big = inf: no bound, as it should be
-            grow = np.exp(np.stack([136.5 / radius * REACH_PX, 4.0 * REACH_PX], axis=1) * (1.0 + 1e-9))
+        state = np.stack([np.zeros(background.shape), np.full(background.shape, -1.0), np.exp(px[1] - px[3] + MARGIN),
+                          np.exp(px[1] + px[2] - MARGIN), np.full(background.shape, 8.0), background,
+                          _log(background)], axis=-1)
+        wake = np.zeros(background.shape, np.int64)
+        edge_grow = np.exp(4.0 * REACH_PX * (1.0 + 1e-9))
         steps = {}  # per-step parameters, indexed by step, for every step simulated so far
 
         def extend(s1):  # known steps: to s1 and some way beyond, so that wake-ups can look ahead
@@ -630,8 +652,8 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
         def run(s0, s1, out, n):
             extend(s1)
             return _ball_run(s0, s1, steps["cx"], steps["cy"], steps["cos"], steps["sin"], steps["boxes"],
-                             steps["travel"], radius, grow, background, log_background, px, state, model.step_us,
-                             model.refractory_us, 8 * geometry.n_pixels, out, n)
+                             steps["travel"], radius, edge_grow, px, wake, state, model.step_us, model.refractory_us,
+                             8 * geometry.n_pixels, out, n)
 
         return run
 
