@@ -137,6 +137,7 @@ class Pipeline:
         self.stages = list(stages)
         self.framer = framer
         self.stats = RunStats()
+        self.cpu_s: dict[str, float] = {}  # CPU seconds per thread of the last threaded `run`
 
     def process(self, chunk: EventChunk) -> Batch:
         n = len(chunk)
@@ -157,29 +158,54 @@ class Pipeline:
         source: Iterable[EventChunk],
         sinks: Iterable[Sink] = (),
         on_batch: Callable[[Batch], None] | None = None,
+        *,
+        threads: bool = False,
+        stop: Callable[[], bool] | None = None,
     ) -> RunStats:
         """Drive `source` through the pipeline into `sinks`; sinks are closed even on error (`fail`ed, if
-        they can tell a failed run from a whole one)."""
+        they can tell a failed run from a whole one). `on_batch` is called after the sinks wrote a batch.
+        `threads`: read the source ahead on one thread and write the sinks behind on another, while this
+        one runs the stages (`evstream.threads`: same batches, same order, same output; both cores).
+        `stop`: asked after each chunk; true ends the run there, as if the source had ended."""
+        from .threads import ReadAhead, WriteBehind
+
         sinks = list(sinks)
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.thread_time()
         geometry = None  # of the events leaving the stages: a transform may crop, rotate, downsample
+
+        def deliver(item: tuple[Batch, bool]) -> None:
+            batch, last = item
+            for sink in sinks:
+                sink.write(batch)
+            if on_batch is not None and not last:  # the end's frames go to the sinks only
+                on_batch(batch)
+
+        chunks = ReadAhead(source) if threads else None
+        writer = WriteBehind(deliver) if threads else None
+        put = writer.put if writer is not None else deliver
         try:
-            for chunk in source:
+            for chunk in chunks if chunks is not None else source:
                 batch = self.process(chunk)
                 geometry = batch.events.geometry
-                for sink in sinks:
-                    sink.write(batch)
                 self.stats.wall_s = time.perf_counter() - t0
-                if on_batch is not None:
-                    on_batch(batch)
+                put((batch, False))
+                if stop is not None and stop():
+                    break
+            if chunks is not None:
+                chunks.close()
             if geometry is None and getattr(source, "geometry", None) is not None:
                 geometry = self.out_geometry(source.geometry)  # no chunk came
             if geometry is not None:
                 batch = self.finish(geometry)
                 if batch.frames:
-                    for sink in sinks:
-                        sink.write(batch)
+                    put((batch, True))
+            if writer is not None:
+                writer.close()
         except BaseException as e:
+            if chunks is not None:
+                chunks.close()
+            if writer is not None:
+                writer.close(check=False)  # what it was given is written: the outputs whole up to here
             self.stats.wall_s = time.perf_counter() - t0
             for sink in sinks:
                 fail = getattr(sink, "fail", None)
@@ -189,6 +215,8 @@ class Pipeline:
                     fail(self.stats, e)
             raise
         self.stats.wall_s = time.perf_counter() - t0
+        if threads:
+            self.cpu_s = {"reader": chunks.cpu_s, "stages": time.thread_time() - cpu0, "writer": writer.cpu_s}
         for sink in sinks:
             sink.close(self.stats)
         return self.stats

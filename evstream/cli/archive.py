@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from .. import threads
 from ..framing import options as framer_options
 from ..pipeline import build, paced
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
@@ -83,7 +84,8 @@ def archive_one(args, stop: StopOnSignal | None = None):
                     inputs=[args.source])
     progress = Progress(source, quiet=args.quiet)
     chunks = paced(source, args.speed)
-    stats = pipeline.run(stop.chunks(chunks) if stop else chunks, [sink], on_batch=progress)
+    stats = pipeline.run(chunks, [sink], on_batch=progress, threads=threads.enabled(),
+                         stop=(lambda: stop.signum is not None) if stop else None)
     progress.done()
     signum = stop.signum if stop else None
     summary = {**stats.as_dict(), "mcap": args.out, "created_folder": created or None, "packets": sink.packets,

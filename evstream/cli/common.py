@@ -160,24 +160,23 @@ def event_rate(hz: float) -> str:
 
 
 class Progress:
-    """A progress bar on stderr (tqdm) fed by the API's callbacks: `on_batch` for a pipeline run (percent of
-    the file where the reader knows it, else events; rate and noise fraction beside), `update(done, total)`
-    for the rest. Off when stderr is not a terminal or with `--quiet`, so logs and pipes stay clean; shown
-    after `delay_s`, so a quick command prints none."""
+    """A progress bar on stderr (tqdm) fed by the API's callbacks: `on_batch` for a pipeline run (percent of the
+    file where the reader knows it, else events; rate and noise fraction beside), `update(done, total)` for the
+    rest. Off when stderr is not a terminal or with `--quiet` (logs, pipes stay clean); shown after `delay_s`."""
 
     PERCENT = "{desc}{percentage:3.0f}%|{bar}| {elapsed}<{remaining}{postfix}"
 
     def __init__(self, source=None, stream=None, *, quiet: bool = False, desc: str | None = None,
                  unit: str = "events", min_interval_s: float = 0.25, delay_s: float = 1.0):
-        from tqdm import tqdm
-
         self.source = source
         self.stream = sys.stderr if stream is None else stream  # at call time: stderr may have been swapped
         self.enabled = not quiet and self.stream.isatty()
-        size = shutil.get_terminal_size((100, 24))  # a terminal that reports no size (a new pty) gets 100x24
-        self._bar = tqdm(total=None, desc=desc, unit=unit, unit_scale=True, file=self.stream, leave=False,
-                         disable=not self.enabled, mininterval=min_interval_s, delay=delay_s,
-                         ncols=size.columns, nrows=size.lines)
+        self._bar = None
+        if self.enabled:  # else tqdm is not even imported (start-up time)
+            from tqdm import tqdm
+            size = shutil.get_terminal_size((100, 24))  # a terminal that reports no size (a new pty): 100x24
+            self._bar = tqdm(total=None, desc=desc, unit=unit, unit_scale=True, file=self.stream, leave=False,
+                             mininterval=min_interval_s, delay=delay_s, ncols=size.columns, nrows=size.lines)
 
     def __call__(self, batch) -> None:
         if not self.enabled:
@@ -210,7 +209,8 @@ class Progress:
             self._bar.update(0)
 
     def done(self) -> None:
-        self._bar.close()
+        if self._bar is not None:
+            self._bar.close()
 
 
 def add_quiet_flag(p) -> None:

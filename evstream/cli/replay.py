@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import threads
 from ..framing import options as framer_options
 from ..pipeline import paced
 from .common import (
@@ -101,7 +102,8 @@ def cmd_replay(args) -> int:
             progress(batch)
 
         with StopOnSignal() as stop, out.guard():  # Ctrl-C: stop after the chunk in progress, then the summary
-            stats = pipeline.run(stop.chunks(paced(lag.watch(source), args.speed)), [sink], on_batch=on_batch)
+            stats = pipeline.run(paced(lag.watch(source), args.speed), [sink], on_batch=on_batch,
+                                 threads=threads.enabled(), stop=lambda: stop.signum is not None)
         progress.done()
         out.finish()
         stopped_by = signal.Signals(stop.signum).name if stop.signum else None

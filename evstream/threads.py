@@ -1,0 +1,169 @@
+"""Both cores for one run: reading ahead of the stages and writing behind them, on threads.
+
+The numba kernels (decoders, stages, encoders) run `nogil`, and zstd, zlib and file I/O release the GIL
+too, so a reader thread (`ReadAhead`: the source's decoding), the caller's thread (the stages) and a
+writer thread (`WriteBehind`: the sinks' encoding, compression and writing) overlap on a small machine.
+
+- Memory stays constant: each queue holds at most `depth` items (chunks or batches), however long the
+  recording.
+- Order and output are those of a serial run: one thread per role, FIFO queues, every item handed on.
+- An error in a thread is raised, as it was raised there, where the caller next touches the queue
+  (its next chunk, its next write, or `close`): the command line reports it in one line as before.
+- Stopping early (Ctrl-C, an error in the stages) stops the reader at its next chunk and lets the
+  writer finish what it was given, so sinks close a file whole up to there.
+
+`EVSTREAM_THREADS=0` in the environment runs the commands serially (for comparisons and debugging).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+__all__ = ["ReadAhead", "WriteBehind", "enabled"]
+
+_END = object()
+_POLL_S = 0.05  # how often a blocked thread looks whether it should stop
+
+
+def enabled() -> bool:
+    """Whether commands overlap reading, stages and writing (not when EVSTREAM_THREADS=0)."""
+    return os.environ.get("EVSTREAM_THREADS", "1").strip().lower() not in ("0", "no", "off", "false")
+
+
+class ReadAhead:
+    """Iterate `items` on a thread, at most `depth` items ahead of the consumer; iterate this (once) for
+    them in order. The source's own error is raised by the iteration at the point it happened.
+    `close()` (also at the end of the iteration, or when the consumer stops early) stops the thread at
+    its next item and waits for it, so the source's files are closed before the caller goes on."""
+
+    def __init__(self, items: Iterable[Any], depth: int = 2, name: str = "evstream-reader"):
+        if depth < 1:
+            raise ValueError(f"depth must be >= 1, got {depth}")
+        self._items = items
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self.cpu_s = 0.0  # the reader thread's CPU time, once it ended
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        it = None
+        try:
+            it = iter(self._items)
+            for item in it:
+                if not self._put((True, item)):
+                    return
+            self._put((False, _END))
+        except BaseException as e:  # handed to the consumer, raised there
+            self._put((False, e))
+        finally:
+            close = getattr(it, "close", None)  # a generator source: its `finally` runs here, now
+            if close is not None:
+                try:
+                    close()
+                except Exception:
+                    pass
+            self.cpu_s = time.thread_time()
+
+    def _put(self, entry) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._queue.put(entry, timeout=_POLL_S)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def __iter__(self) -> Iterator[Any]:
+        try:
+            while True:
+                ok, item = self._queue.get()
+                if ok:
+                    yield item
+                elif item is _END:
+                    return
+                else:
+                    raise item
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Stop the reader (it finishes the item it is reading) and wait for it."""
+        self._stop.set()
+        while self._thread.is_alive():
+            try:  # make room for a put in progress
+                self._queue.get_nowait()
+            except queue.Empty:
+                pass
+            self._thread.join(_POLL_S)
+
+
+class WriteBehind:
+    """Call `write(item)` on a thread for every `put(item)`, in order, at most `depth` items waiting.
+    `close()` waits until everything put is written. An error in `write` is raised by the next `put` or
+    by `close`; the items put after it are dropped (a sink that failed writes nothing more)."""
+
+    def __init__(self, write: Callable[[Any], None], depth: int = 2, name: str = "evstream-writer"):
+        if depth < 1:
+            raise ValueError(f"depth must be >= 1, got {depth}")
+        self._write = write
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._error: BaseException | None = None
+        self._closed = False
+        self.cpu_s = 0.0  # the writer thread's CPU time, once it ended
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is _END:
+                self.cpu_s = time.thread_time()
+                return
+            if self._error is not None:
+                continue  # failed: drop the rest, keep the putter from blocking
+            try:
+                self._write(item)
+            except BaseException as e:
+                self._error = e
+
+    def put(self, item: Any) -> None:
+        if self._closed:
+            raise RuntimeError("WriteBehind: put after close")
+        self._raise()
+        while True:
+            try:
+                self._queue.put(item, timeout=_POLL_S)
+                return
+            except queue.Full:
+                self._raise()  # a failed writer still drains, but say so now
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def close(self, *, check: bool = True) -> None:
+        """Wait until everything put is written; raise the writer's error (unless `check` is false: the
+        caller is already handling another one)."""
+        if not self._closed:
+            self._closed = True
+            while True:
+                try:
+                    self._queue.put(_END, timeout=_POLL_S)
+                    break
+                except queue.Full:
+                    if not self._thread.is_alive():  # pragma: no cover - the writer never leaves early
+                        break
+            self._thread.join()
+        if check:
+            self._raise()
+
+    @property
+    def error(self) -> BaseException | None:
+        """The writer's error, if it had one."""
+        return self._error
