@@ -234,6 +234,19 @@ def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept():
     assert ((score >= 1) == (got == 0)).all()
 
 
+@given(seed=st.integers(0, 2**32), block=st.integers(1, 700), earlier=st.booleans())
+def test_a_chunk_larger_than_a_block_gets_the_same_classes(seed, block, earlier):
+    """A chunk longer than `block_events` runs through both stages block by block: same classes."""
+    s = random_stream(seed, 1500, G)
+    if earlier:  # an earlier stage already classed some events noise
+        dead = np.random.default_rng(seed).random(len(s)) < 0.3
+        s = s.replace(cls=np.where(dead, NoiseClass.HOT_PIXEL, NoiseClass.SIGNAL).astype(np.uint8))
+    make = lambda: PaperCascade(coarse={"window_us": 800}, fine={"rate_hz": 5000.0})  # noqa: E731
+    blocked = make()
+    blocked.block_events = block
+    assert np.array_equal(blocked(s).cls, make()(s).cls)
+
+
 @pytest.mark.parametrize("make", [lambda: DensityFilter(window_us=500), lambda: TimeSeriesFilter(rate_hz=5000.0)])
 def test_after_an_earlier_stage_each_stage_judges_only_the_live_events(make):
     from evstream.denoise.refractory import RefractoryFilter

@@ -7,6 +7,7 @@ its activity series from — only the events the coarse stage kept, as in the pa
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -28,6 +29,10 @@ class PaperCascade:
     coarse: dict = field(default_factory=dict)
     fine: dict = field(default_factory=dict)
     _stages: tuple = field(default=(), init=False, repr=False)
+    # A larger chunk runs through both stages block by block: the fine stage then reads each block's
+    # events from cache, not memory (a 10 M-event call ran 0.74x the speed of 100k chunks; 1M-event
+    # blocks measured best at both sensor sizes).
+    block_events: ClassVar[int] = 1 << 20
 
     def __post_init__(self):
         self._stages = (DensityFilter(**self.coarse), TimeSeriesFilter(**self.fine))
@@ -56,9 +61,16 @@ class PaperCascade:
         else:
             codes = chunk.cls.copy()
             all_live = not np.count_nonzero(codes)
-        # each skips what an earlier one rejected: no gather, no copy
-        self._stages[0]._run(chunk, codes, False, all_live)
-        self._stages[1]._run(chunk, codes, False)
+        coarse, fine = self._stages
+        n = len(chunk)
+        if n <= self.block_events:  # each skips what an earlier one rejected: no gather, no copy
+            coarse._run(chunk, codes, False, all_live)
+            fine._run(chunk, codes, False)
+        else:  # both stages are chunk-invariant: the same classes, with the block still in cache for the fine one
+            for a in range(0, n, self.block_events):
+                block, block_codes = chunk[a : a + self.block_events], codes[a : a + self.block_events]
+                coarse._run(block, block_codes, False, all_live)
+                fine._run(block, block_codes, False)
         return chunk.with_classes(codes)
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
