@@ -6,9 +6,9 @@ URL, .npz native, .raw EVT3/EVT2, .h5 HDF5) and takes batches or chunks until cl
             sink.write(batch)
 
 Every output goes through `safe_write.AtomicOutput`: written beside the target (`OUT.part`) and renamed
-once whole, never onto an input; a failed run leaves what was there before. Native and HDF5 files take
-whole arrays, so they hold the events until closed; RAW is encoded as it comes (a writer thread), MCAP
-and Rerun stream.
+once whole, never onto an input; a failed run leaves what was there before. Native files take whole
+arrays, so they hold the events until closed; RAW is encoded as it comes (a writer thread), HDF5
+datasets grow chunk by chunk, MCAP and Rerun stream.
 """
 
 from __future__ import annotations
@@ -152,6 +152,7 @@ class FileSink:
         self.output = AtomicOutput(self.path, inputs=inputs)
         self.part = self.output.part
         self._chunks: list[EventChunk] = []
+        self._hdf5 = None  # the HDF5 writer, from the first write
         self._queue: queue.Queue | None = None
         self._thread = None
         self._error: list[BaseException] = []
@@ -160,6 +161,13 @@ class FileSink:
         chunk = batch.events if self.keep_noise else batch.events.of_class(NoiseClass.SIGNAL)
         self.geometry = self.geometry or chunk.geometry
         self.events += len(chunk)
+        if self.format == "hdf5":
+            if self._hdf5 is None:
+                from evstream.sources import hdf5
+
+                self._hdf5 = hdf5.Writer(self.part, self.geometry)
+            self._hdf5.append(chunk)
+            return
         if not self.format.startswith("evt"):
             self._chunks.append(chunk)
             return
@@ -196,17 +204,23 @@ class FileSink:
                 self._thread.join()
                 if self._error:
                     raise self._error[0]
+            elif self.format == "hdf5":
+                from evstream.sources import hdf5
+
+                writer, self._hdf5 = self._hdf5, None
+                if writer is None:  # nothing written: an empty file
+                    if self.geometry is None:
+                        raise ValueError(f"{self.path}: no events and no geometry given")
+                    writer = hdf5.Writer(self.part, self.geometry)
+                writer.close()
             else:
-                from evstream.sources import hdf5, native
+                from evstream.sources import native
 
                 if self.geometry is None:
                     raise ValueError(f"{self.path}: no events and no geometry given")
                 events = concat(self._chunks, self.geometry)
                 self._chunks = []
-                if self.format == "native":
-                    native.save(self.part, events, self.meta)
-                else:
-                    hdf5.save(self.part, events)
+                native.save(self.part, events, self.meta)
             self.output.commit()
         finally:
             self.output.discard()  # nothing once committed
@@ -216,6 +230,9 @@ class FileSink:
         if self._queue is not None and self._thread.is_alive():
             self._queue.put(None)
             self._thread.join()
+        if self._hdf5 is not None:
+            self._hdf5.abort()
+            self._hdf5 = None
         self.output.discard()
         self.format, self._chunks = "abandoned", []
 

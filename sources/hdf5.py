@@ -16,7 +16,6 @@ ECF filter: without that plugin installed, reading fails with a clear error.
 from __future__ import annotations
 
 import builtins
-import io
 import re
 from collections.abc import Iterator
 
@@ -187,25 +186,169 @@ def open(path, **options) -> Hdf5Source:  # noqa: A001 - the format-module inter
     return Hdf5Source(path, **options)
 
 
-def save(path, events, compression: str | None = "gzip") -> None:
-    """Write a chunk as `/events/{t,x,y,p}` with width/height attributes.
+CHUNK_ROWS = 1 << 16  # events per HDF5 chunk of a written column (512 KB of timestamps before gzip)
 
-    The HDF5 library builds the file in memory and Python writes it out: when the library itself meets a
-    write error (a full disk), h5py raises it from object finalizers and then dies by segfault (h5py 3.16,
-    5 of 5 runs). Python's own writes fail with a plain OSError."""
-    h5py = _h5py()
-    image = io.BytesIO()
-    with h5py.File(image, "w") as f:
-        f.attrs["width"], f.attrs["height"] = events.geometry.width, events.geometry.height
-        f.attrs["t_unit"] = "us"
-        g = f.create_group("events")
-        for k in "txyp":
-            g.create_dataset(k, data=getattr(events, k), compression=compression)
-    with builtins.open(path, "wb") as out:
-        view = image.getbuffer()
-        for a in range(0, len(view), 1 << 20):
-            out.write(view[a:a + (1 << 20)])
-        del view
+
+def save(path, events, compression: str | None = "gzip") -> None:
+    """Write a chunk as `/events/{t,x,y,p}` with width/height attributes (a `Writer` given one chunk)."""
+    with Writer(path, events.geometry, compression=compression) as writer:
+        writer.append(events)
+
+
+class Writer:
+    """HDF5 events written as they come: `/events/{t,x,y,p}` (resizable, chunked, gzip) grow by each chunk
+    appended, and `width`/`height`/`t_unit` attributes on the file; memory holds a few HDF5 chunks, not
+    the recording. `with Writer(path, geometry) as w: w.append(chunk)`; an error inside the block drops
+    the file (the caller's AtomicOutput keeps what was there before).
+
+    The HDF5 library writes through `_KeptErrorFile`: when the library itself meets a write error (a full
+    disk), h5py raises it from object finalizers and then dies by segfault (h5py 3.16, 5 of 5 runs); so
+    no error reaches the library, and the first is raised here, in Python, as a plain OSError."""
+
+    def __init__(self, path, geometry: Geometry | None = None, chunk_rows: int = CHUNK_ROWS,
+                 compression: str | None = "gzip"):
+        h5py = _h5py()
+        self.path = path
+        self.geometry = geometry
+        self.events = 0
+        self._raw = _KeptErrorFile(path)
+        try:
+            self._file = h5py.File(self._raw, "w")
+            if geometry is not None:
+                self._set_size(geometry)
+            group = self._file.create_group("events")
+            self._columns = {k: group.create_dataset(k, shape=(0,), maxshape=(None,), dtype=dtype,
+                                                     chunks=(chunk_rows,), compression=compression)
+                             for k, dtype in (("t", np.int64), ("x", np.uint16), ("y", np.uint16), ("p", np.uint8))}
+        except BaseException:
+            self.abort()
+            raise
+        self._check()
+
+    def _set_size(self, geometry: Geometry) -> None:
+        self._file.attrs["width"], self._file.attrs["height"] = geometry.width, geometry.height
+        self._file.attrs["t_unit"] = "us"
+
+    def append(self, chunk) -> None:
+        """Add a chunk's events after those written so far."""
+        if self.geometry is None:
+            self.geometry = chunk.geometry
+            self._set_size(chunk.geometry)
+        n, end = self.events, self.events + len(chunk)
+        if end > n:
+            for k, column in self._columns.items():
+                column.resize((end,))
+                column[n:end] = getattr(chunk, k)
+        self.events = end
+        self._check()
+
+    def close(self) -> None:
+        """Finish the file (the library writes its last metadata); raises the first write error."""
+        if self.geometry is None:
+            self.abort()
+            raise ValueError(f"{self.path}: no events and no geometry given")
+        try:
+            self._file.close()
+        finally:
+            self._raw.close()
+        self._check()
+
+    def abort(self) -> None:
+        """Let go of the file without a word (an error already on its way): what is in it is not wanted."""
+        try:
+            if getattr(self, "_file", None) is not None:
+                self._file.close()
+        except Exception:  # the error on its way is the one to see
+            pass
+        self._raw.close()
+
+    def _check(self) -> None:
+        if self._raw.error is not None:
+            raise self._raw.error
+
+    def __enter__(self) -> Writer:
+        return self
+
+    def __exit__(self, kind, exc, tb) -> None:
+        if exc is None:
+            self.close()
+        else:
+            self.abort()
+
+
+class _KeptErrorFile:
+    """The file h5py writes through (its Python-file driver calls seek, tell, read, write, truncate and
+    flush), keeping every OS error from the HDF5 library: the first is kept in `error` for Python to raise;
+    what is written after it is held in memory (the library only finishes its metadata then), so what the
+    library reads back is what it wrote. Unbuffered: an error belongs to the write that made it."""
+
+    def __init__(self, path):
+        self._file = builtins.open(path, "w+b", buffering=0)
+        self.error: OSError | None = None
+        self._pos = self._end = 0
+        self._held: list[tuple[int, bytes]] = []  # (offset, bytes) written after the error, in order
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        self._pos = offset if whence == 0 else self._pos + offset if whence == 1 else self._end + offset
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def write(self, data) -> int:
+        data = bytes(data)
+        if self.error is None:
+            try:
+                self._file.seek(self._pos)
+                view = memoryview(data)
+                while view:
+                    view = view[self._file.write(view):]
+            except OSError as e:
+                self.error = e
+        if self.error is not None:
+            self._held.append((self._pos, data))
+        self._pos += len(data)
+        self._end = max(self._end, self._pos)
+        return len(data)
+
+    def read(self, size: int = -1) -> bytes:
+        size = self._end - self._pos if size < 0 else size
+        data = bytearray()
+        try:
+            self._file.seek(self._pos)
+            while len(data) < size:
+                piece = self._file.read(size - len(data))
+                if not piece:
+                    break
+                data += piece
+        except OSError as e:
+            self.error = self.error or e
+        data += bytes(size - len(data))  # past what reached the disk: zeros, or what is held
+        for at, piece in self._held:
+            lo, hi = max(at, self._pos), min(at + len(piece), self._pos + size)
+            if lo < hi:
+                data[lo - self._pos:hi - self._pos] = piece[lo - at:hi - at]
+        self._pos += size
+        return bytes(data)
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self._pos if size is None else size
+        if self.error is None:
+            try:
+                self._file.truncate(size)
+            except OSError as e:
+                self.error = e
+        self._end = size
+        return size
+
+    def flush(self) -> None:
+        pass  # unbuffered
+
+    def close(self) -> None:
+        try:
+            self._file.close()
+        except OSError as e:
+            self.error = self.error or e
 
 
 def _missing_filters(ds) -> list[str]:

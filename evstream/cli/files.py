@@ -81,18 +81,19 @@ def convert_one(args) -> dict:
         if kind == ".raw":  # streamed
             n = prophesee_raw.save(part, chunks, source.geometry, version=f"evt{args.evt}")
             fmt = f"evt{args.evt}"
-        else:
+        elif kind == ".npz":
             from ..events import concat
 
-            events = concat(list(chunks), source.geometry)  # these writers take whole arrays
+            events = concat(list(chunks), source.geometry)  # the native writer takes whole arrays
             n = len(events)
-            if kind == ".npz":
-                native.save(part, events, {"converted_from": str(args.source),
-                                           "source_format": getattr(source, "format", "?")})
-                fmt = "native"
-            else:
-                hdf5.save(part, events)
-                fmt = "hdf5"
+            native.save(part, events, {"converted_from": str(args.source),
+                                       "source_format": getattr(source, "format", "?")})
+            fmt = "native"
+        else:  # streamed
+            with hdf5.Writer(part, source.geometry) as writer:
+                for chunk in chunks:
+                    writer.append(chunk)
+            n, fmt = writer.events, "hdf5"
     progress.done()
     return {"source": args.source, "out": str(out), "format": fmt, "events": n,
             "width": source.geometry.width, "height": source.geometry.height, "created_folder": created or None}
