@@ -77,6 +77,26 @@ def test_aedat4_header_offset_flipped_is_a_one_line_error_not_a_rust_panic(tmp_p
     assert line.startswith(f"evstream: error: {bad} at byte {byte}: corrupt AEDAT4 header"), line
 
 
+@pytest.mark.parametrize("bit", [0x01, 0x80])
+def test_aedat4_packet_that_makes_the_decoder_panic_is_one_line_naming_the_packet(tmp_path, real_data, bit):
+    """A bit flipped in the LZ4 frame header of packet 25 (a trigger packet) passes every check of ours
+    and makes the Rust decoder panic ('assertion failed: data.len() >= SIZE_SIZEPREFIX + ...'): a Rust panic
+    message on fd 2, then pyo3's PanicException, a BaseException. The reader's panic suppression
+    (aedat4._quiet_panics, and catching BaseException) makes that one line naming the packet; without the
+    first the panic message shows, without the second a traceback."""
+    data = bytearray((real_data / AEDAT4).read_bytes())
+    at = aedat4_packets(bytes(data))[25]
+    data[at + 8 + 8] ^= bit
+    bad = tmp_path / AEDAT4
+    bad.write_bytes(bytes(data))
+    rc, out, err = cli("info", bad)
+    assert rc == 1 and out == "", (rc, out, err)
+    assert "panicked" not in err and "RUST_BACKTRACE" not in err and "Traceback" not in err, err
+    assert one_line_error(err) == (f"evstream: error: {bad} at byte {at}: AEDAT4 decoding failed at packet 25: "
+                                   "decoder panic: assertion failed: data.len() >= SIZE_SIZEPREFIX + SIZE_UOFFSET + "
+                                   "FILE_IDENTIFIER_LENGTH")
+
+
 def test_aedat4_cut_in_a_packet_warns_naming_the_packet_and_keeps_the_events_before(tmp_path, real_data):
     data = (real_data / AEDAT4).read_bytes()
     packets = aedat4_packets(data)
