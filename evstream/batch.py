@@ -106,8 +106,10 @@ def up_to_date(task: Task) -> bool:
 
 
 def worker_env() -> dict[str, str]:
-    """One numba thread per worker process: N workers use N cores, not N x cores."""
-    return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    """One thread per worker process: N workers use N cores, not N x cores. Numba's kernels on one thread,
+    and a task's pipeline serial (EVSTREAM_THREADS=0: a one-file command otherwise reads and writes on
+    threads beside its stages, using cores the other workers have)."""
+    return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "EVSTREAM_THREADS": "0"}
 
 
 def start_client(jobs: int | None = None, scheduler: str | None = None):

@@ -73,8 +73,14 @@ def _numba_threads():
     return numba.config.NUMBA_NUM_THREADS
 
 
+def _pipeline_threads():
+    return os.environ.get("EVSTREAM_THREADS")
+
+
 def test_workers_run_numba_on_one_thread(client):
+    """One thread per worker: numba's, and the task's pipeline serial (no reader/writer threads)."""
     assert set(client.run(_numba_threads).values()) == {1}
+    assert set(client.run(_pipeline_threads).values()) == {"0"}
     assert all(w["nthreads"] == 1 for w in client.scheduler_info()["workers"].values())
 
 

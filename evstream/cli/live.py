@@ -59,6 +59,6 @@ def settle_memory() -> None:
     warmed kernels: several hundred thousand objects that live as long as the process) is moved out of
     the cyclic garbage collector's sight (`gc.freeze`), so its collections during the stream walk only
     what the stream makes. Measured in benchmarks/bench_live.py: the collector's walks had taken 10-25 %
-    of a node's and a subscriber's CPU."""
-    gc.collect()
+    of a node's and a subscriber's CPU. (No collection first: it cost ~0.1 s of start-up, for garbage
+    of a few objects.)"""
     gc.freeze()
