@@ -92,6 +92,12 @@ class ReadAhead:
         finally:
             self.close()
 
+    def __enter__(self) -> ReadAhead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     def close(self) -> None:
         """Stop the reader (it finishes the item it is reading) and wait for it."""
         self._stop.set()

@@ -13,6 +13,7 @@ datasets grow chunk by chunk, MCAP and Rerun stream.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import threading
@@ -22,6 +23,7 @@ from typing import Any
 from .events import EventChunk, NoiseClass, concat
 from .pipeline import Batch, RunStats
 from .safe_write import AtomicOutput
+from .threads import ReadAhead, enabled
 
 FILE_FORMATS = {".npz": "native", ".raw": "evt", ".h5": "hdf5", ".hdf5": "hdf5"}
 
@@ -252,8 +254,8 @@ def convert(path, out, *, evt: int | str = 3, **options) -> dict[str, Any]:
     meta = {"converted_from": str(path), "source_format": getattr(source, "format", "?")}
     sink = FileSink(out, geometry=source.geometry, keep_noise=True, evt=evt, meta=meta, inputs=[path])
     writer = SinkWriter(sink)
-    with writer:
-        for chunk in source:
+    with writer, ReadAhead(source) if enabled() else contextlib.nullcontext(source) as chunks:
+        for chunk in chunks:  # read on a thread of its own (evstream.threads); RAW encoded on another
             writer.write(chunk)
     return {"source": str(path), "out": str(out), "format": sink.format, "events": sink.events,
             "width": source.geometry.width, "height": source.geometry.height}

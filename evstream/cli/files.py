@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 from pathlib import Path
 
-from .. import api
+from .. import api, threads
 from ..safe_write import AtomicOutput
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
@@ -76,8 +77,9 @@ def convert_one(args) -> dict:
     source = open_recording(args.source, args)
     created = create_folder(out.parent)
     progress = Progress(source, quiet=args.quiet, desc="convert")
-    chunks = _reported(source, progress)
-    with AtomicOutput(out, [args.source]) as part:  # beside OUT until whole: a failure leaves OUT as it was
+    reader = threads.ReadAhead(source) if threads.enabled() else contextlib.nullcontext(source)
+    with reader as read, AtomicOutput(out, [args.source]) as part:  # beside OUT until whole: a failure
+        chunks = _reported(read, progress)  # leaves OUT as it was; reading on a thread of its own
         if kind == ".raw":  # streamed
             n = prophesee_raw.save(part, chunks, source.geometry, version=f"evt{args.evt}")
             fmt = f"evt{args.evt}"

@@ -8,7 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import threads
 from ..events import EventChunk, NoiseClass
+from ..threads import WriteBehind
 from .common import attach_framer, pipeline_from_args
 
 
@@ -54,6 +56,7 @@ class Camera:
         attach_framer(self.pipeline, args)
         self.sinks = []
         self.pub = None
+        self.writer = WriteBehind(self._deliver, name=f"evstream-{self.name}-writer") if threads.enabled() else None
         if args.archive:
             from evstream.sinks.mcap_sink import McapSink
 
@@ -85,7 +88,16 @@ class Camera:
                                  frames_key=frames_key_for(key) if self.pipeline.framer is not None else None)
 
     def process(self, packet) -> None:
+        """The stages here; the sinks and the republishing on the camera's writer thread (`evstream.threads`:
+        the next packet's stages overlap this one's encoding and sending), in order."""
         batch = self.pipeline.process(packet.chunk)
+        if self.writer is not None:
+            self.writer.put((batch, packet.source_time_ns))
+        else:
+            self._deliver((batch, packet.source_time_ns))
+
+    def _deliver(self, item) -> None:
+        batch, source_time_ns = item
         for sink in self.sinks:
             sink.write(batch)
         if self.viewer_sink is not None and self.viewer_sink.points_late and not self.said_late:
@@ -94,13 +106,16 @@ class Camera:
                   "behind the newest are dropped, not queued (frames and statistics stay complete)",
                   file=sys.stderr, flush=True)
         if self.pub is not None:
-            self.pub.write(batch, source_time_ns=packet.source_time_ns)
+            self.pub.write(batch, source_time_ns=source_time_ns)
 
     def close(self) -> None:
         """Finish the pipeline (frames still open), close the sinks (files complete, end mark sent)."""
-        batch = self.pipeline.finish(self.node.geometry_of[self.name])
         sinks = self.sinks + ([self.pub] if self.pub is not None else [])
         try:
+            if self.writer is not None:
+                self.writer, writer = None, self.writer
+                writer.close()  # what was handed to it is written and sent; its error raised here
+            batch = self.pipeline.finish(self.node.geometry_of[self.name])
             if batch.frames:
                 for sink in sinks:
                     sink.write(batch)

@@ -1,0 +1,172 @@
+"""Whole commands as a user runs them, one process each: `archive --denoise paper`, `replay --save` and
+`convert` on a 10 M-event recording (346×260, the turntable with background activity and hot pixels of
+bench_archive, tiled to 10 M events), serial (EVSTREAM_THREADS=0) against threaded (reading, stages and
+writing on their own threads, evstream.threads), interleaved; and the start-up of a command (imports,
+cached kernels) on a 2,000-event file.
+
+    .venv/bin/python -m benchmarks.bench_commands            # the table (about 3 minutes on a quiet machine)
+    .venv/bin/python -m benchmarks.bench_commands --repeat 1 --inputs raw   # quicker
+
+Each row is the best of `--repeat` runs (by wall time). Columns: wall time and CPU time of the process (all
+its threads), events per wall second; and, for a machine shared with other work, per-thread CPU (reader,
+stages, writer, other: threads not ours, Rerun's) and the critical path — start-up CPU plus the busiest
+thread's CPU, what the wall time would be with a free core per thread — and the events per second it
+allows. On a quiet 2-core machine the wall column is the one to quote; under load, the CPU columns.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+N_EVENTS = 10_000_000
+ROLES = ("reader", "stages", "writer", "other")
+
+
+def make_inputs(folder: Path, kinds: list[str]) -> dict[str, Path]:
+    """The 10 M-event recording in each asked format, and a 2,000-event one for start-up."""
+    from evstream.sources import native, prophesee_raw
+
+    from evstream.events import Geometry, concat
+
+    from .common import noisy_scene
+
+    g, duration_us = Geometry(346, 260), 2_000_000
+    one = noisy_scene("turntable", g, duration_us)
+    reps = -(-N_EVENTS // len(one))
+    events = concat([one.replace(t=one.t + k * duration_us) for k in range(reps)])[:N_EVENTS]
+    paths = {"tiny": folder / "tiny.npz"}  # named by their stems
+    native.save(paths["tiny"], events[:2000], compress=False)
+    if "native" in kinds:
+        paths["native"] = folder / "native.npz"
+        native.save(paths["native"], events, compress=False)
+    if "zipped" in kinds:
+        paths["zipped"] = folder / "zipped.npz"
+        native.save(paths["zipped"], events, compress=True)
+    if "raw" in kinds:
+        paths["raw"] = folder / "raw.raw"
+        prophesee_raw.save(paths["raw"], events, g, version="evt3")
+    return paths
+
+
+def child(argv: list[str]) -> None:
+    """Run `evstream ARGV` in this process, then write wall, CPU and per-thread CPU to $BENCH_OUT."""
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
+    from evstream import pipeline
+    from evstream.cli import main
+
+    run, seen = pipeline.Pipeline.run, {}
+
+    def timed_run(self, *a, **k):
+        cpu = time.process_time()
+        stats = run(self, *a, **k)
+        seen.update(run_cpu_s=time.process_time() - cpu, threads=dict(self.cpu_s), events=stats.events_in)
+        return stats
+
+    pipeline.Pipeline.run = timed_run
+    code = main(argv)
+    seen.update(code=code, wall_s=time.perf_counter() - t_wall, cpu_s=time.process_time() - t_cpu)
+    Path(os.environ["BENCH_OUT"]).write_text(json.dumps(seen))
+
+
+def run_child(argv: list[str], threads: bool, folder: Path) -> dict:
+    out = folder / "child.json"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # as installed: bytecode cached
+    env.update(EVSTREAM_THREADS="1" if threads else "0", BENCH_OUT=str(out))
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "benchmarks.bench_commands", "--child", *argv], env=env,
+                            cwd=Path(__file__).resolve().parents[1], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise RuntimeError(f"evstream {' '.join(argv)} failed: {err}")
+    seen = json.loads(out.read_text())
+    seen.update(process_wall_s=wall, process_cpu_s=usage.ru_utime + usage.ru_stime, rss_mb=usage.ru_maxrss / 1024)
+    return seen
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--inputs", nargs="+", default=["raw", "native"], choices=["raw", "native", "zipped"])
+    ap.add_argument("--commands", nargs="+", default=["archive", "replay", "convert"])
+    ap.add_argument("--child", nargs=argparse.REMAINDER)
+    ap.add_argument("--make-inputs", nargs="+", metavar=("FOLDER", "KIND"))
+    args = ap.parse_args()
+    if args.child is not None:
+        child(args.child)
+        return
+    if args.make_inputs:
+        make_inputs(Path(args.make_inputs[0]), args.make_inputs[1:])
+        return
+    run(args.repeat, args.inputs, args.commands)
+
+
+def run(repeat: int = 3, inputs=("raw", "native"), commands=("archive", "replay", "convert")) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        # made in a child: this process stays small (a child's peak RSS counts its parent's pages before exec)
+        subprocess.run([sys.executable, "-m", "benchmarks.bench_commands", "--make-inputs", str(folder), *inputs],
+                       check=True, cwd=Path(__file__).resolve().parents[1])
+        paths = {p.stem: p for p in folder.iterdir()}
+        print(f"-- load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; best of {repeat}; "
+              f"{N_EVENTS:,} events, 346x260", flush=True)
+        for threads in (False, True):  # warm: kernels compiled and cached, bytecode written
+            run_child(["archive", str(paths["tiny"]), str(folder / "w.mcap"), "--denoise", "paper", "-q"], threads,
+                      folder)
+        startup = []
+        for _ in range(max(5, 2 * repeat)):
+            startup.append(run_child(["archive", str(paths["tiny"]), str(folder / "s.mcap"), "--denoise", "paper",
+                                      "-q"], True, folder))
+        best = min(startup, key=lambda r: r["process_wall_s"])
+        cpu = min(r["process_cpu_s"] for r in startup)
+        print(f"start-up: `evstream archive` of 2,000 events: wall {best['process_wall_s']:.3f} s, "
+              f"CPU {cpu:.3f} s (best of {len(startup)})", flush=True)
+        for code in ("pass", "import numpy", "import numba", "import evstream.cli"):
+            t = []
+            for _ in range(5):
+                t0 = time.perf_counter()
+                subprocess.run([sys.executable, "-c", code], check=True)
+                t.append(time.perf_counter() - t0)
+            print(f"  (for scale) python -c {code!r}: wall {min(t):.3f} s", flush=True)
+        print(f"{'command':<44} {'thr':>3} {'wall s':>7} {'CPU s':>6} {'M ev/s':>7} | {'reader':>6} {'stages':>6} "
+              f"{'writer':>6} {'other':>6} {'crit s':>6} {'M ev/s':>7} | {'RSS MB':>6}", flush=True)
+        for kind in inputs:
+            src = str(paths[kind])
+            runs = {
+                "archive": ["archive", src, str(folder / "a.mcap"), "--denoise", "paper", "-q"],
+                "replay": ["replay", src, "--denoise", "paper", "--save", str(folder / "r.rrd"), "-q"],
+                "convert": ["convert", src, str(folder / "c.raw"), "-q"],
+            }
+            for name in commands:
+                argv = runs[name]
+                results = {False: [], True: []}
+                for _ in range(repeat):
+                    for threads in (False, True):  # interleaved: the same load on both
+                        results[threads].append(run_child(argv, threads, folder))
+                for threads in (False, True):
+                    r = min(results[threads], key=lambda r: r["process_wall_s"])
+                    th = dict(r.get("threads") or {})
+                    if th:  # CPU of threads not ours (Rerun's encoder and writer)
+                        th["other"] = max(0.0, r["run_cpu_s"] - sum(th.values()))
+                    startup_cpu = r["cpu_s"] - r.get("run_cpu_s", 0.0)
+                    busiest = max(th.values()) if th else r.get("run_cpu_s", 0.0)
+                    crit = startup_cpu + busiest
+                    label = f"{name} {kind}" + (" --denoise paper" if name != "convert" else " -> .raw")
+                    print(f"{label:<44} {'yes' if threads else 'no':>3} {r['process_wall_s']:7.2f} "
+                          f"{r['process_cpu_s']:6.2f} {N_EVENTS / r['process_wall_s'] / 1e6:7.1f} | "
+                          + " ".join(f"{th[k]:6.2f}" if k in th else f"{'-':>6}" for k in ROLES)
+                          + f" {crit:6.2f} {N_EVENTS / crit / 1e6:7.1f} | {r['rss_mb']:6.0f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
