@@ -50,10 +50,6 @@ import mcap.writer
 import numpy as np
 import zstandard
 from evstream.sinks.colours import CLASS_COLOURS
-from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
-from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
-from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from mcap.writer import CompressionType, Writer
 
 from evstream.codecs.event_packet import DATATYPE, HEADER_MSGDEFS, MSGDEF, encode_packet
@@ -114,6 +110,8 @@ def topics(camera: str = "camera") -> dict[str, str]:
 
 def _file_descriptor_set(message_class) -> bytes:
     """The protobuf schema of `message_class` and its imports, as MCAP's protobuf profile wants it."""
+    from google.protobuf.descriptor_pb2 import FileDescriptorSet
+
     fds = FileDescriptorSet()
     seen: set[str] = set()
 
@@ -317,9 +315,13 @@ class McapSink:
             sid = w.register_schema(IMAGE_DATATYPE, "ros2msg", IMAGE_MSGDEF.encode())
             self._frames_channel = w.register_channel(self.topics["frames"], "cdr", sid)
         elif self.frames:
+            from foxglove_schemas_protobuf.RawImage_pb2 import RawImage  # protobuf: only for frames (start-up)
+
             sid = w.register_schema("foxglove.RawImage", "protobuf", _file_descriptor_set(RawImage))
             self._frames_channel = w.register_channel(self.topics["frames"], "protobuf", sid)
         if self.points:
+            from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
             sid = w.register_schema("foxglove.PointCloud", "protobuf", _file_descriptor_set(PointCloud))
             self._points_channel = w.register_channel(self.topics["points"], "protobuf", sid)
             sid = w.register_schema(TF_DATATYPE, "ros2msg", TF_MSGDEF.encode())
@@ -423,6 +425,8 @@ class McapSink:
             self.messages += 1
             self._pending_bytes += len(data)
             return
+        from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
         msg = RawImage(frame_id=self.camera, width=img.shape[1], height=img.shape[0], encoding="mono8",
                        step=img.shape[1], data=img.tobytes())
         msg.timestamp.seconds, msg.timestamp.nanos = divmod(t_ns, 1_000_000_000)
@@ -445,6 +449,9 @@ class McapSink:
         rec["red"], rec["green"], rec["blue"] = (_POINT_COLOURS[cls, k] for k in range(3))
         rec["alpha"] = 255
         t_ns = int(chunk.t[-1]) * 1000
+        from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+        from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+
         msg = PointCloud(frame_id=self.camera, point_stride=_POINT.itemsize, data=rec.tobytes())
         msg.timestamp.seconds, msg.timestamp.nanos = divmod(t_ns, 1_000_000_000)
         msg.pose.orientation.w = 1.0
