@@ -1,5 +1,6 @@
 """Archiving throughput: the EVT3 encoder alone, the MCAP sink alone, and end to end
-(native file -> paper cascade -> EVT3 EventPackets -> zstd MCAP) at 346×260, on one core.
+(native file -> paper cascade -> EVT3 EventPackets -> zstd MCAP) at 346×260, on one core and threaded
+(reading and writing beside the stages, as `evstream archive` runs; whole processes: bench_commands.py).
 
 Stream: the turntable scene (2 s) with 3 Hz/pixel background activity and 0.1 % hot pixels, saved as a
 native .npz (plain, and zipped as `evstream synth` writes it) and read back in the source's 50k-event
@@ -67,18 +68,21 @@ def run() -> None:
             eps = events_per_s(sink_only, n, repeat=3)
             report(f"MCAP sink alone, keep_noise={keep_noise}", eps, file_MB=f"{os.path.getsize(out) / 1e6:.1f}")
 
-        # end to end, as `evstream archive --denoise paper` runs: read the file, clean, encode, write
+        # end to end, as `evstream archive --denoise paper` runs: read the file, clean, encode, write; on one
+        # thread, and with reading and writing on threads of their own (evstream.threads, what the command does)
         for path, keep_noise, frames in ((zip_path, False, False), (src_path, False, False),
                                          (src_path, True, False), (src_path, True, True)):
-            def end_to_end(path=path, keep_noise=keep_noise, frames=frames):
-                pipe = Pipeline([build("stage", {"kind": "paper"})],
-                                build("framer", {"kind": "fw"}) if frames else None)
-                pipe.run(open_source(path), [McapSink(out, keep_noise=keep_noise, frames=frames)])
+            for threads in (False, True):
+                def end_to_end(path=path, keep_noise=keep_noise, frames=frames, threads=threads):
+                    pipe = Pipeline([build("stage", {"kind": "paper"})],
+                                    build("framer", {"kind": "fw"}) if frames else None)
+                    pipe.run(open_source(path), [McapSink(out, keep_noise=keep_noise, frames=frames)], threads=threads)
 
-            eps = events_per_s(end_to_end, n, repeat=7)
-            kind = "zipped" if path == zip_path else "plain"
-            report(f"native ({kind}) -> paper -> MCAP, noise={keep_noise:d}, frames={frames:d}", eps,
-                   peak_alloc_MB=f"{peak_alloc_bytes(end_to_end) / 1e6:.1f}")
+                eps = events_per_s(end_to_end, n, repeat=7)
+                kind = "zipped" if path == zip_path else "plain"
+                report(f"native ({kind}) -> paper -> MCAP, noise={keep_noise:d}, frames={frames:d}"
+                       f"{', threads' if threads else ''}", eps,
+                       peak_alloc_MB=f"{peak_alloc_bytes(end_to_end) / 1e6:.1f}")
 
         def cascade_only():
             stage = build("stage", {"kind": "paper"})
