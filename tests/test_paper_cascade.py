@@ -247,6 +247,25 @@ def test_a_chunk_larger_than_a_block_gets_the_same_classes(seed, block, earlier)
     assert np.array_equal(blocked(s).cls, make()(s).cls)
 
 
+@given(seed=st.integers(0, 2**32), block=st.integers(1, 700), earlier=st.booleans())
+def test_the_fine_stage_judges_a_long_chunk_block_by_block_with_the_same_result(seed, block, earlier):
+    from evstream.denoise import timeseries
+
+    s = random_stream(seed, 1500, G)
+    if earlier:
+        dead = np.random.default_rng(seed).random(len(s)) < 0.3
+        s = s.replace(cls=np.where(dead, NoiseClass.BACKGROUND, NoiseClass.SIGNAL).astype(np.uint8))
+    make = lambda: TimeSeriesFilter(rate_hz=5000.0, n_bins=40)  # noqa: E731
+    whole, whole_scored = make()(s).cls, make().classify_scored(s)
+    saved, timeseries.BLOCK_EVENTS = timeseries.BLOCK_EVENTS, block
+    try:
+        blocked, blocked_scored = make()(s).cls, make().classify_scored(s)
+    finally:
+        timeseries.BLOCK_EVENTS = saved
+    assert np.array_equal(blocked, whole)
+    assert np.array_equal(blocked_scored[0], whole_scored[0]) and np.array_equal(blocked_scored[1], whole_scored[1])
+
+
 @pytest.mark.parametrize("make", [lambda: DensityFilter(window_us=500), lambda: TimeSeriesFilter(rate_hz=5000.0)])
 def test_after_an_earlier_stage_each_stage_judges_only_the_live_events(make):
     from evstream.denoise.refractory import RefractoryFilter

@@ -203,11 +203,16 @@ class TimeSeriesFilter(InPlaceClassifier):
         n = len(chunk)
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
         kernel = dc_kernel(self._options, want_score)
-        live = np.empty(n, np.int64)
-        cursor = np.array([0, -1], np.int64)
-        while not kernel(chunk.t, chunk.x, chunk.y, live, cursor, codes, *self._args, score):
-            grow_fifo(s, ("fifo_pos",))
-            self._bind()
+        live = np.empty(min(n, BLOCK_EVENTS), np.int64)
+        cursor = np.empty(2, np.int64)
+        t, x, y = chunk.t, chunk.x, chunk.y
+        for a in range(0, n, BLOCK_EVENTS):  # the stage is chunk-invariant: blocks keep `live` in cache
+            b = min(n, a + BLOCK_EVENTS)
+            cursor[:] = (0, -1)
+            while not kernel(t[a:b], x[a:b], y[a:b], live, cursor, codes[a:b], *self._args,
+                             score[a:b] if want_score else score):
+                grow_fifo(s, ("fifo_pos",))
+                self._bind()
         return score
 
     def _bind(self) -> None:
@@ -219,3 +224,6 @@ class TimeSeriesFilter(InPlaceClassifier):
 
 
 _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it
+# A longer chunk is judged block by block (same classes): its gathered live indices stay in cache
+# (a 10 M-event call ran 0.3-0.4x the speed of 100k chunks without this).
+BLOCK_EVENTS = 1 << 20
