@@ -231,3 +231,40 @@ def test_open_source_read_ahead_matches(recording):
     for a, b in zip(serial, ahead):
         np.testing.assert_array_equal(a.t, b.t)
         np.testing.assert_array_equal(a.x, b.x)
+
+
+def _rrd_content(path) -> dict:
+    """Entity -> every logged row (time, component values), sorted; the 3D view's points as one sorted list
+    of points per class. Rerun batches rows by wall-clock time, and the sink sends its points on a
+    wall-clock cadence (how they group into rows, and the slab's rows, differ between two serial runs)."""
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, list] = {}
+    for chunk in RrdReader(str(path)).stream():
+        if chunk.is_static or chunk.entity_path == "/events":  # the slab transform: a row per send
+            continue
+        rb = chunk.to_record_batch()
+        names = sorted(n for n in rb.schema.names if ":" in n and not n.startswith("rerun."))
+        columns = [rb.column(rb.schema.names.index(n)).to_pylist() for n in names]
+        if chunk.entity_path.startswith("/events/"):  # points: each one, whatever row it came in
+            at = names.index("Points3D:positions")
+            rows.setdefault(chunk.entity_path, []).extend(repr(p) for row in columns[at] for p in row)
+            continue
+        times = rb.column(rb.schema.names.index("event_time")).cast("int64").to_pylist()
+        rows.setdefault(chunk.entity_path, []).extend(repr(v) for v in zip(times, *columns))
+    return {entity: sorted(v) for entity, v in rows.items()}
+
+
+def test_threaded_replay_logs_what_the_serial_replay_logs(tmp_path):
+    from evstream.sinks.rerun_sink import RerunSink
+    from evstream.sinks.rerun_viewer import open_output
+
+    chunks = _rechunk(random_stream(5, 30_000, G, mean_dt_us=20.0), range(700, 30_000, 2100))
+    for threads in (False, True):
+        out = open_output(save=str(tmp_path / f"{threads}.rrd"))
+        pipe = Pipeline([build("stage", {"kind": "paper"})], build("framer", {"kind": "fw", "window_us": 20_000}))
+        pipe.run(iter(chunks), [RerunSink(out.rec, geometry=G, framer="fw")], threads=threads)
+        out.finish()
+    serial, threaded = _rrd_content(tmp_path / "False.rrd"), _rrd_content(tmp_path / "True.rrd")
+    assert len(serial["/events/signal"]) > 1000 and len(serial["/frames/fw"]) > 10
+    assert serial == threaded
