@@ -115,7 +115,8 @@ def run_chain(recording: Path, n_events: int, rate_hz: float, load_hz: float, pa
             "sustained_hz": cleaned["events"] / span_s, "p50_ms": got["latency_p50_ms"],
             "p99_ms": got["latency_p99_ms"], "warm_p50_ms": got.get("latency_warm_p50_ms", float("nan")),
             "warm_p99_ms": got.get("latency_warm_p99_ms", float("nan")), "publish_hz": sent["events_per_s"],
-            "ns_per_event": {k: 1e9 * v / max(sent["events"], 1) for k, v in cpu.items()}}
+            "ns_per_event": {k: 1e9 * v / max(sent["events"], 1) for k, v in cpu.items()},
+            "cores": sum(cpu.values()) / span_s}
 
 
 def run_cameras(recording: Path, n_cams: int, packet_us: int) -> dict:
@@ -167,9 +168,9 @@ def run_cameras(recording: Path, n_cams: int, packet_us: int) -> dict:
                 p.kill()
                 p.wait()
     published = sum(s["events"] for s in sent)
-    tail_s = max(c["latency_max_ms"] for c in got["cameras"].values()) * 1e-3
+    span_s = max(s["wall_s"] for s in sent) + max(c["latency_max_ms"] for c in got["cameras"].values()) * 1e-3
     return {"cameras": n_cams, "published": published, "node_events": node_events,
-            "missing": got["missing"], "total_hz": node_events / (max(s["wall_s"] for s in sent) + tail_s),
+            "cores": sum(cpu.values()) / span_s, "missing": got["missing"], "total_hz": node_events / span_s,
             "p99_ms": max(c["latency_p99_ms"] for c in got["cameras"].values()),
             "ns_per_event": {k: 1e9 * v / max(published, 1) for k, v in cpu.items()}}
 
@@ -181,11 +182,12 @@ def cameras(max_cams: int = 3, packet_us: int = 10_000) -> None:
         n = make_recording(rec, duration_us=int(BASE_S * 1e6))
         print(f"  each camera: {n:,} events (a {BASE_S:g}-s recording) at --speed 0, {packet_us / 1e3:g}-ms packets; "
               f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
-        print("  cameras = nodes | total events/s | p99 latency | CPU ns/event: publishers, router, nodes, subscriber")
+        print("  cameras = nodes | total events/s | p99 latency | cores used | CPU ns/event: publishers, router, "
+              "nodes, subscriber")
         for k in range(1, max_cams + 1):
             r = run_cameras(rec, k, packet_us)
             ns = r["ns_per_event"]
-            print(f"  {k:15d} | {r['total_hz'] / 1e6:8.2f} M/s   | {r['p99_ms']:8.0f} ms | "
+            print(f"  {k:15d} | {r['total_hz'] / 1e6:8.2f} M/s   | {r['p99_ms']:8.0f} ms | {r['cores']:10.2f} | "
                   f"{ns['publisher']:.0f}, {ns['router']:.0f}, {ns['node']:.0f}, {ns['subscriber']:.0f}"
                   f"{'' if r['node_events'] == r['published'] and not r['missing'] else '  LOST EVENTS'}", flush=True)
 
@@ -212,12 +214,12 @@ def run() -> None:
                    published=r["published"], node_in=r["node_events"], node_missing=r["node_missing"],
                    publisher_hz=f"{r['publish_hz'] / 1e6:.2f}M")
             rows.append((load, wall_ms, r))
-        print("  CPU ns per published event          | publisher | router | node | subscriber | sum")
+        print("  CPU ns per published event          | publisher | router | node | subscriber | sum | cores used")
         for load, wall_ms, r in rows:
             ns = r["ns_per_event"]
             parts = [ns[k] for k in ("publisher", "router", "node", "subscriber")]
             print(f"  {load / 1e6:2.0f} M ev/s offered, {wall_ms:3g}-ms packets | "
-                  + " | ".join(f"{v:9.0f}" for v in parts) + f" | {sum(parts):4.0f}", flush=True)
+                  + " | ".join(f"{v:9.0f}" for v in parts) + f" | {sum(parts):4.0f} | {r['cores']:.2f}", flush=True)
 
     cameras()
 
