@@ -22,7 +22,7 @@ from typing import Any
 
 from .events import EventChunk, NoiseClass, concat
 from .pipeline import Batch, RunStats
-from .safe_write import AtomicOutput
+from .safe_write import AtomicOutput, is_no_space, no_space_error
 from .threads import ReadAhead, enabled
 
 FILE_FORMATS = {".npz": "native", ".raw": "evt", ".h5": "hdf5", ".hdf5": "hdf5"}
@@ -242,9 +242,11 @@ class FileSink:
         return {"out": str(self.path), "format": self.format, "events": self.events}
 
 
-def convert(path, out, *, evt: int | str = 3, **options) -> dict[str, Any]:
+def convert(path, out, *, evt: int | str = 3, on_progress=None, **options) -> dict[str, Any]:
     """Every event of a recording into another format (.npz native, .raw EVT3/EVT2, .h5 HDF5); returns
-    what `evstream convert` prints. The output is never the input (checked by file identity)."""
+    what `evstream convert` prints. The output is never the input (checked by file identity).
+    `on_progress(events, fraction)` after each chunk: events so far, the share of the file read (None
+    where the reader does not know it). `options` go to `evstream.open` (geometry, timestamps, start_us...)."""
     from .api import open as open_recording
 
     out = Path(out)
@@ -254,8 +256,15 @@ def convert(path, out, *, evt: int | str = 3, **options) -> dict[str, Any]:
     meta = {"converted_from": str(path), "source_format": getattr(source, "format", "?")}
     sink = FileSink(out, geometry=source.geometry, keep_noise=True, evt=evt, meta=meta, inputs=[path])
     writer = SinkWriter(sink)
-    with writer, ReadAhead(source) if enabled() else contextlib.nullcontext(source) as chunks:
-        for chunk in chunks:  # read on a thread of its own (evstream.threads); RAW encoded on another
-            writer.write(chunk)
+    try:
+        with writer, ReadAhead(source) if enabled() else contextlib.nullcontext(source) as chunks:
+            for chunk in chunks:  # read on a thread of its own (evstream.threads); RAW encoded on another
+                writer.write(chunk)
+                if on_progress is not None:
+                    on_progress(sink.events, getattr(source, "fraction_read", None))
+    except OSError as e:  # the partial output is gone (SinkWriter); a full disk said naming OUT
+        if is_no_space(e):
+            raise no_space_error(out) from None
+        raise
     return {"source": str(path), "out": str(out), "format": sink.format, "events": sink.events,
             "width": source.geometry.width, "height": source.geometry.height}

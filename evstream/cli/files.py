@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 from pathlib import Path
 
-from .. import api, threads
-from ..safe_write import AtomicOutput
+from .. import api
+from ..writers import convert
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
     Progress,
@@ -18,7 +17,6 @@ from .common import (
     create_folder,
     folder_note,
     not_the_input,
-    open_recording,
     reader_options,
 )
 
@@ -66,39 +64,27 @@ OUT_KINDS = (".npz", ".raw", ".h5", ".hdf5")
 
 
 def convert_one(args) -> dict:
-    """Convert `args.source` to `args.out` (the one-file command without its printing); the summary."""
-    from evstream.sources import hdf5, native, prophesee_raw
-
+    """Convert `args.source` to `args.out` (the one-file command without its printing): the flags checked,
+    then `evstream.convert`; its summary, with the folder made for OUT."""
     out = Path(args.out)
-    kind = out.suffix.lower()
-    if kind not in OUT_KINDS:
+    if out.suffix.lower() not in OUT_KINDS:
         raise UsageError(f"{args.out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
     not_the_input(args.source, out, "")  # by identity: `ln X.npz h.npz; convert X.npz h.npz` rewrote X
-    source = open_recording(args.source, args)
+    options = reader_options(args)
     created = create_folder(out.parent)
-    progress = Progress(source, quiet=args.quiet, desc="convert")
-    reader = threads.ReadAhead(source) if threads.enabled() else contextlib.nullcontext(source)
-    with reader as read, AtomicOutput(out, [args.source]) as part:  # beside OUT until whole: a failure
-        chunks = _reported(read, progress)  # leaves OUT as it was; reading on a thread of its own
-        if kind == ".raw":  # streamed
-            n = prophesee_raw.save(part, chunks, source.geometry, version=f"evt{args.evt}")
-            fmt = f"evt{args.evt}"
-        elif kind == ".npz":
-            from ..events import concat
+    progress = Progress(quiet=args.quiet, desc="convert")
 
-            events = concat(list(chunks), source.geometry)  # the native writer takes whole arrays
-            n = len(events)
-            native.save(part, events, {"converted_from": str(args.source),
-                                       "source_format": getattr(source, "format", "?")})
-            fmt = "native"
-        else:  # streamed
-            with hdf5.Writer(part, source.geometry) as writer:
-                for chunk in chunks:
-                    writer.append(chunk)
-            n, fmt = writer.events, "hdf5"
-    progress.done()
-    return {"source": args.source, "out": str(out), "format": fmt, "events": n,
-            "width": source.geometry.width, "height": source.geometry.height, "created_folder": created or None}
+    def on_progress(events: int, fraction: float | None) -> None:
+        if fraction is not None:
+            progress.update(100 * fraction, 100, percent=True)
+        else:
+            progress.update(events, None)
+
+    try:  # written beside OUT until whole, reading on a thread of its own: a failure leaves OUT as it was
+        summary = convert(args.source, out, evt=args.evt, on_progress=on_progress, **options)
+    finally:
+        progress.done()
+    return {**summary, "source": args.source, "created_folder": created or None}
 
 
 def convert_file(source: str, out: str, **flags) -> dict:
@@ -106,19 +92,6 @@ def convert_file(source: str, out: str, **flags) -> dict:
     args = argparse.Namespace(**flags, source=source, out=out)
     args.quiet = True
     return convert_one(args)
-
-
-def _reported(source, progress):
-    """The source's chunks, telling the progress bar how far into the file they are."""
-    events = 0
-    for chunk in source:
-        events += len(chunk)
-        fraction = getattr(source, "fraction_read", None)
-        if fraction is not None:
-            progress.update(100 * fraction, 100, percent=True)
-        else:
-            progress.update(events, None)
-        yield chunk
 
 
 def add_info_parser(sub) -> None:
