@@ -10,7 +10,9 @@ All events are labelled SIGNAL; `evstream.noise` adds labelled noise.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +33,7 @@ class SensorModel:
     step_us: int = 100  # sampling step of the intensity field
 
 
+BUFFER_EVENTS = 1 << 18  # events a run's buffer holds beyond one step's worst case
 NEVER = 2**62  # a wake-up step no simulation reaches
 PATCHES_MIN, PATCHES_MAX = 1.0 / (1.0 + math.exp(10.0)), 1.0 / (1.0 + math.exp(-10.0))  # |pattern| <= 10
 EDGE_IN, EDGE_OFF = math.exp(-40.0), math.exp(40.0)  # e^-2edge where the ball's edge value saturates
@@ -95,12 +98,35 @@ def _emit(log_prev, log_now, ref, thr_on, thr_off, last_t, t_prev, t_now, refrac
 
 Field = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 Region = Callable[[float, float], tuple[slice, slice]]
-# a compiled run: run(s0, s1, out, n) simulates steps s0..s1-1 (step s samples t = s * step_us) writing events
-# into `out` from index n, and returns (events in out, the first step not simulated: s1 unless out filled up)
-Run = Callable[[int, int, tuple, int], tuple[int, int]]
+# a compiled run: run(s0, s1) simulates steps s0..s1-1 (step s samples t = s * step_us) and returns their events
+# as arrays (t, x, y, p, sort key), in any order: the key orders them as the reference emits them
+Run = Callable[[int, int], list]
 # makes a scene's run over the simulation's per-pixel state (level, ref, thr_on, thr_off, last_t)
 Runner = Callable[[tuple, "SensorModel"], Run]
 Progress = Callable[[int, int], None]  # (µs of scene simulated, µs in all)
+
+
+THREADS = max(1, min(4, os.cpu_count() or 1))  # row bands simulated side by side (the kernels release the GIL)
+_pool: list[ThreadPoolExecutor] = []
+
+
+def _in_bands(kernel, s0, s1, args, buffers, step_cap):
+    """`kernel(s0, s1, band, bands, *args, step_cap, out, n) -> (n, next step)` over interleaved row bands, one
+    per buffer, in threads; returns every band's events (copies). A band whose buffer fills is emptied and
+    goes on from where it stopped."""
+    def one(band):
+        out, parts, s = buffers[band], [], s0
+        while s < s1:
+            n, s = kernel(s, s1, band, len(buffers), *args, step_cap, out, 0)
+            if n:
+                parts.append(tuple(a[:n].copy() for a in out))
+        return parts
+
+    if len(buffers) == 1:
+        return one(0)
+    if not _pool:
+        _pool.append(ThreadPoolExecutor(THREADS, thread_name_prefix="evstream-synth"))
+    return [p for parts in _pool[0].map(one, range(len(buffers))) for p in parts]
 
 
 def _buffers(cap):
@@ -135,8 +161,7 @@ def simulate(
     level = log_intensity(0.0, xx, yy)
     ref = level + rng.uniform(-0.5, 0.5, shape) * thr_on  # pixels start at random points of their cycle
     last_t = np.full(shape, -(10**9), np.int64)
-    step_cap = geometry.n_pixels * 8  # events one step may write (what the reference's buffer holds)
-    out = _buffers(step_cap * (2 if runner else 1))
+    out = _buffers(geometry.n_pixels * 8)  # events one step may write
     px = (level, ref, thr_on, thr_off, last_t)
     run = runner(px, model) if runner else None
     full = (slice(0, geometry.height), slice(0, geometry.width))
@@ -159,11 +184,7 @@ def simulate(
                     order = np.argsort(out[0][:n], kind="stable")
                     parts.append(tuple(a[:n][order] for a in out[:4]))
         else:
-            step = s
-            while step <= last:
-                n, step = run(step, last + 1, out, 0)
-                if n:
-                    parts.append(tuple(a[:n].copy() for a in out))
+            parts = run(s, last + 1)
             if parts:
                 keys = np.concatenate([p[4] for p in parts])
                 order = np.argsort(keys, kind="stable")
@@ -294,11 +315,12 @@ def _turntable_init(static, px, safe, box):
 
 
 @njit(cache=True, nogil=True)
-def _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, box, step_us, refractory_us, step_cap,
-                   out, n):
-    """Steps s0..s1-1 of the turntable over its box; per-step arrays start at step s0 - 1. A pixel is
-    looked at on its wake-up step only: its edge value moves by at most 2 r |Δ(k phase)| (`travel`), so
-    until it has travelled its distance to the safe range's ends, it cannot cross."""
+def _turntable_run(s0, s1, band, bands, first, cos_ph, sin_ph, travel, k, static, px, safe, box, step_us,
+                   refractory_us, step_cap, out, n):
+    """Steps s0..s1-1 of the turntable over the rows of its box in `band` of `bands` (interleaved);
+    per-step arrays start at step first - 1. A pixel is looked at on its wake-up step only: its edge value
+    moves by at most 2 r |Δ(k phase)| (`travel`), so until it has travelled its distance to the safe
+    range's ends, it cannot cross."""
     r, sin_kth, cos_kth, outside, inside, dark, light = static
     level, ref, thr_on, thr_off, last_t = px
     lo, hi, wake = safe
@@ -306,10 +328,10 @@ def _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, box, ste
     for s in range(s0, s1):
         if n + step_cap > cap:
             return n, s
-        i = s - s0 + 1
+        i = s - first + 1
         t_prev = (s - 1) * step_us
         limit = n + step_cap
-        for y in range(box[0], box[1]):
+        for y in range(box[0] + (band - box[0]) % bands, box[1], bands):
             for x in range(box[2], box[3]):
                 if wake[y, x] > s:
                     continue
@@ -333,7 +355,7 @@ def _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, box, ste
                     wake[y, x] = NEVER if low < e < high else s + 1
                 else:
                     d = min(high - e, e - low)
-                    wake[y, x] = _wake(travel, i, s, s0, (d * (1.0 - 1e-9) - 1e-7) * k / (2.0 * r[y, x]))
+                    wake[y, x] = _wake(travel, i, s, first, (d * (1.0 - 1e-9) - 1e-7) * k / (2.0 * r[y, x]))
     return n, s1
 
 
@@ -434,9 +456,10 @@ V_PREV, V_STEP, V_LO, V_HI, REACH, BG, LOG_BG = range(7)  # a ball pixel's state
 
 
 @njit(cache=True, nogil=True)
-def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, travel, radius, edge_grow, px, wake, state, step_us,
-              refractory_us, step_cap, out, n):
-    """Steps s0..s1-1 of the ball over each step's box (per-step arrays are indexed by step). A pixel is
+def _ball_run(s0, s1, band, bands, cx, cy, cos_spin, sin_spin, boxes, travel, radius, edge_grow, px, wake, state,
+              step_us, refractory_us, step_cap, out, n):
+    """Steps s0..s1-1 of the ball over each step's box, its rows in `band` of `bands` (interleaved;
+    per-step arrays are indexed by step). A pixel is
     looked at on its wake-up step only: until the ball has travelled the distance `_ball_reach` allows, it
     cannot cross. Where a crossing needs the pixel's value at its previous step in a box, that step is
     found and its value computed again. `state[y, x]`: the argument of its log when last looked at (-1 off
@@ -449,7 +472,7 @@ def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, travel, radius, edge_gr
             return n, s
         t_prev = (s - 1) * step_us
         limit = n + step_cap
-        for y in range(boxes[s, 0], boxes[s, 1]):
+        for y in range(boxes[s, 0] + (band - boxes[s, 0]) % bands, boxes[s, 1], bands):
             for x in range(boxes[s, 2], boxes[s, 3]):
                 if wake[y, x] > s:
                     continue
@@ -488,16 +511,18 @@ def _ball_run(s0, s1, cx, cy, cos_spin, sin_spin, boxes, travel, radius, edge_gr
 
 
 @njit(cache=True, nogil=True)
-def _bar_run(s0, s1, centres, boxes, width_px, px, state, step_us, refractory_us, step_cap, out, n):
-    """Steps s0..s1-1 of the bar (per-step arrays start at step s0). It depends on x alone: one log per
-    column, and a column is passed over while its value lies strictly between every row's thresholds."""
+def _bar_run(s0, s1, band, bands, first, centres, boxes, width_px, px, state, step_us, refractory_us, step_cap,
+             out, n):
+    """Steps s0..s1-1 of the bar, in one band (per-step arrays start at step `first`). It depends on x
+    alone: one log per column, and a column is passed over while its value lies strictly between every
+    row's thresholds."""
     level, ref, thr_on, thr_off, last_t = px
     value, col_lo, col_hi = state  # value: at the column's last step in the region (NaN: never sampled)
     cap = len(out[0])
     for s in range(s0, s1):
         if n + step_cap > cap:
             return n, s
-        i = s - s0
+        i = s - first
         t_prev = (s - 1) * step_us
         limit = n + step_cap
         centre = centres[i]
@@ -575,14 +600,16 @@ def turntable(geometry: Geometry, *, duration_s: float, sectors: int = 4, rev_hz
         safe = (np.full(shape, np.inf), np.full(shape, -np.inf), np.full(shape, NEVER, np.int64))
         limits = np.array([box[0].start, box[0].stop, box[1].start, box[1].stop], np.int64)
         _turntable_init(static, px, safe, limits)
+        step_cap = 8 * geometry.n_pixels
+        buffers = [_buffers(step_cap + BUFFER_EVENTS) for _ in range(THREADS)]
 
-        def run(s0, s1, out, n):
+        def run(s0, s1):
             kphase = k * phase_at(_step_times(s0 - 1, s1, model.step_us))
             cos_ph = np.array([np.cos(float(v)) for v in kphase])  # one by one, as before: the same bits
             sin_ph = np.array([np.sin(float(v)) for v in kphase])
             travel = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(kphase)))))
-            return _turntable_run(s0, s1, cos_ph, sin_ph, travel, k, static, px, safe, limits, model.step_us,
-                                  model.refractory_us, 8 * geometry.n_pixels, out, n)
+            return _in_bands(_turntable_run, s0, s1, (s0, cos_ph, sin_ph, travel, k, static, px, safe, limits,
+                                                       model.step_us, model.refractory_us), buffers, step_cap)
 
         return run
 
@@ -649,11 +676,14 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
             for key, value in new.items():
                 steps[key] = np.concatenate([steps[key], value]) if key in steps else value
 
-        def run(s0, s1, out, n):
+        step_cap = 8 * geometry.n_pixels
+        buffers = [_buffers(step_cap + BUFFER_EVENTS) for _ in range(THREADS)]
+
+        def run(s0, s1):
             extend(s1)
-            return _ball_run(s0, s1, steps["cx"], steps["cy"], steps["cos"], steps["sin"], steps["boxes"],
-                             steps["travel"], radius, edge_grow, px, wake, state, model.step_us, model.refractory_us,
-                             8 * geometry.n_pixels, out, n)
+            return _in_bands(_ball_run, s0, s1, (steps["cx"], steps["cy"], steps["cos"], steps["sin"], steps["boxes"],
+                                                 steps["travel"], radius, edge_grow, px, wake, state, model.step_us,
+                                                 model.refractory_us), buffers, step_cap)
 
         return run
 
@@ -685,10 +715,13 @@ def bar(geometry: Geometry, *, duration_s: float, speed_px_s: float = 150.0, wid
         shape = px[0].shape
         state = (np.full(shape[1], np.nan), np.full(shape[1], np.inf), np.full(shape[1], -np.inf))
 
-        def run(s0, s1, out, n):
+        step_cap = 8 * geometry.n_pixels
+        buffers = [_buffers(step_cap + BUFFER_EVENTS)]  # one band: a column is all its rows at once
+
+        def run(s0, s1):
             t = _step_times(s0, s1, model.step_us)
-            return _bar_run(s0, s1, centre(t), boxes(t - model.step_us * 1e-6, t), width_px, px, state,
-                            model.step_us, model.refractory_us, 8 * geometry.n_pixels, out, n)
+            return _in_bands(_bar_run, s0, s1, (s0, centre(t), boxes(t - model.step_us * 1e-6, t), width_px, px, state,
+                                                model.step_us, model.refractory_us), buffers, step_cap)
 
         return run
 

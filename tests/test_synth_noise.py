@@ -194,10 +194,15 @@ def test_ball_reach_is_safe():
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_compiled_scenes_give_the_reference_events(seed):
-    """`scene()` (compiled runs, skipping what cannot cross) and `scene(compiled=False)` (numpy field at
-    every step, every pixel of the region): the same events, on random sensors, seeds, durations, sensor
-    models and scene parameters (turntables turning either way, bars fast enough to wrap)."""
+def test_compiled_scenes_give_the_reference_events(seed, monkeypatch):
+    """`scene()` (compiled runs, skipping what cannot cross, in 1-3 row bands side by side, with buffers that
+    fill after 10, 1000 or 2^18 events) and `scene(compiled=False)` (numpy field at every step, every pixel
+    of the region): the same events, on random sensors, seeds, durations, sensor models and scene
+    parameters (turntables turning either way, bars fast enough to wrap)."""
+    from evstream import synth
+
+    monkeypatch.setattr(synth, "THREADS", 1 + seed % 3)
+    monkeypatch.setattr(synth, "BUFFER_EVENTS", (10, 1000, 1 << 18)[seed // 2])
     rng = np.random.default_rng(100 + seed)
     g = Geometry(int(rng.integers(32, 100)), int(rng.integers(24, 80)))
     duration = int(rng.integers(20, 120)) * 1000
