@@ -24,12 +24,12 @@ from .api import (
 )
 from .events import EventChunk, EventError, Frame, Geometry, NoiseClass, concat
 from .pipeline import Batch, Pipeline, RunStats
-from .writers import SinkWriter, convert, open_sink
+from .writers import SinkWriter, archive, convert, open_sink
 
 __version__ = "0.1.0"
 # `open` is left out of the star-import list: `from evstream import *` must not shadow the builtin
 __all__ = [
     "Batch", "Denoise", "EventChunk", "EventError", "Frame", "Geometry", "NoiseClass", "Pipeline", "RunStats",
-    "SinkWriter", "as_geometry", "batches", "build_pipeline", "catalogue", "classify", "clean", "concat",
+    "SinkWriter", "archive", "as_geometry", "batches", "build_pipeline", "catalogue", "classify", "clean", "concat",
     "convert", "framer", "from_structured", "info", "open_sink", "read", "set_params", "stage", "subscribe",
 ]

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from .events import EventChunk, NoiseClass, concat
-from .pipeline import Batch, RunStats
+from .pipeline import Batch, Pipeline, RunStats, build, paced
 from .safe_write import AtomicOutput, is_no_space, no_space_error
 from .threads import ReadAhead, enabled
 
@@ -268,3 +268,53 @@ def convert(path, out, *, evt: int | str = 3, on_progress=None, **options) -> di
         raise
     return {"source": str(path), "out": str(out), "format": sink.format, "events": sink.events,
             "width": source.geometry.width, "height": source.geometry.height}
+
+
+def archive(recording, out, *, pipeline: Pipeline | None = None, keep_noise: bool = False, frames: bool = False,
+            frame_format: str = "foxglove", points: bool = False, camera: str = "camera", encoding: str = "evt3",
+            packet_us: int = 10_000, flush_s: float = 1.0, speed: float = 0.0, command=None, on_batch=None,
+            stop=None, path=None, **options) -> dict[str, Any]:
+    """A recording cleaned into an MCAP archive (ROS 2 EventPackets, the removed events per noise class
+    with `keep_noise`, frames, point clouds, provenance): what `evstream archive` does. Returns its
+    summary (the run's statistics, packets and frames written).
+
+    `recording`: a path (opened with `evstream.open(path, **options)`) or a source already opened (then
+    `path` names its file, for the provenance and the check that the archive is not written onto it).
+    `pipeline`: the stages (and framer) to run; default the paper's cascade; `frames` without a framer
+    adds a fixed-window one. `speed`: 1 = real time, 0 = as fast as possible. `on_batch(batch)` after
+    each batch (progress); `stop()` polled between chunks ends the run early, the archive complete up to
+    there. `command`: the command line, kept in the provenance. The archive is written beside OUT and
+    renamed when whole (flushed every `flush_s`: a crash loses at most that), never onto the recording."""
+    from evstream.sinks.mcap_sink import McapSink
+
+    from . import api, threads
+
+    if hasattr(recording, "geometry"):
+        source = recording
+        path = os.fspath(path) if path is not None else getattr(source, "path", None)
+    else:
+        path = os.fspath(recording)
+        source = api.open(path, **options)
+    if pipeline is None:
+        pipeline = Pipeline([build("stage", {"kind": "paper"})])
+    if frames and pipeline.framer is None:
+        pipeline.framer = build("framer", {"kind": "fw"})
+    provenance = {"source": str(path), "source_format": getattr(source, "format", type(source).__name__),
+                  "width": source.geometry.width, "height": source.geometry.height,
+                  "pipeline": pipeline.describe(), "command": command, "evstream": _version()}
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    sink = McapSink(os.fspath(out), camera=camera, encoding=encoding, keep_noise=keep_noise,
+                    frames=pipeline.framer is not None, frame_format=frame_format, points=points,
+                    packet_us=packet_us, flush_s=flush_s, metadata=provenance,
+                    geometry=pipeline.out_geometry(source.geometry), inputs=[path] if path else [])
+    stats = pipeline.run(paced(source, speed), [sink], on_batch=on_batch, threads=threads.enabled(), stop=stop)
+    return {**stats.as_dict(), "mcap": os.fspath(out), "packets": sink.packets, "frames_written": sink.frames_written}
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("evstream")
+    except Exception:  # not installed (running from a source tree)
+        return "unknown"

@@ -7,9 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from .. import threads
 from ..framing import options as framer_options
-from ..pipeline import build, paced
+from ..writers import archive
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
     STORED_CLASSES_NOTE,
@@ -22,7 +21,6 @@ from .common import (
     attach_framer,
     check_numbers,
     create_folder,
-    evstream_version,
     folder_note,
     not_the_input,
     open_recording,
@@ -59,39 +57,30 @@ def cmd_archive(args) -> int:
 
 
 def archive_one(args, stop: StopOnSignal | None = None):
-    """Archive `args.source` to `args.out` (the one-file command without its printing); returns
-    (summary dict, RunStats, the folder it created or '')."""
+    """Archive `args.source` to `args.out` (the one-file command without its printing): the flags checked
+    and turned into a pipeline, then `evstream.archive`; returns (summary dict, RunStats, the folder it
+    created or '')."""
     import signal
-
-    from evstream.sinks.mcap_sink import McapSink
 
     check_numbers(args, at_least_zero=("speed",), positive=("packet_us", "flush_s"))
     not_the_input(args.source, args.out, "")  # `archive A.mcap A.mcap` emptied A.mcap and exited 0
     source = open_recording(args.source, args)
     pipeline = pipeline_from_args(args, source)
     attach_framer(pipeline, args)
-    if args.frames and pipeline.framer is None:
-        pipeline.framer = build("framer", {"kind": "fw"})
-    command = getattr(args, "command_line", None) or sys.argv[1:] or None
-    provenance = {"source": str(args.source), "source_format": getattr(source, "format", type(source).__name__),
-                  "width": source.geometry.width, "height": source.geometry.height,
-                  "pipeline": pipeline.describe(), "command": command, "evstream": evstream_version()}
     created = create_folder(Path(args.out).parent)
-    sink = McapSink(args.out, camera=args.camera, encoding=args.encoding, keep_noise=args.keep_noise,
-                    frames=pipeline.framer is not None, frame_format=args.frame_format, points=args.points,
-                    packet_us=args.packet_us,
-                    flush_s=args.flush_s, metadata=provenance, geometry=pipeline.out_geometry(source.geometry),
-                    inputs=[args.source])
     progress = Progress(source, quiet=args.quiet)
-    chunks = paced(source, args.speed)
-    stats = pipeline.run(chunks, [sink], on_batch=progress, threads=threads.enabled(),
-                         stop=(lambda: stop.signum is not None) if stop else None)
-    progress.done()
+    try:
+        summary = archive(source, args.out, pipeline=pipeline, keep_noise=args.keep_noise, frames=args.frames,
+                          frame_format=args.frame_format, points=args.points, camera=args.camera,
+                          encoding=args.encoding, packet_us=args.packet_us, flush_s=args.flush_s, speed=args.speed,
+                          command=getattr(args, "command_line", None) or sys.argv[1:] or None, on_batch=progress,
+                          stop=(lambda: stop.signum is not None) if stop else None, path=args.source)
+    finally:
+        progress.done()
     signum = stop.signum if stop else None
-    summary = {**stats.as_dict(), "mcap": args.out, "created_folder": created or None, "packets": sink.packets,
-               "frames_written": sink.frames_written,
-               "stopped_by": signal.Signals(signum).name if signum else None}
-    return summary, stats, created
+    summary.update(mcap=args.out, created_folder=created or None,
+                   stopped_by=signal.Signals(signum).name if signum else None)
+    return summary, pipeline.stats, created
 
 
 def archive_file(source: str, out: str, **flags) -> dict:
