@@ -133,11 +133,22 @@ def score(ws: Path) -> dict:
     return {"counts": counts, "score": killed / total if total else None, "survivors": survivors}
 
 
+def _same_sources(name: str, ws: Path) -> bool:
+    """Whether the copy in `ws` was made from the files to mutate as they are now."""
+    for pattern in TARGETS[name][0]:
+        for path in ws.glob(pattern):
+            rel = path.relative_to(ws / "evstream")
+            src = ROOT / rel if rel.parts[0] in ("sources", "sinks") else ROOT / "evstream" / rel
+            if path.suffix == ".py" and plain_kernels(src.read_text()) != path.read_text():
+                return False
+    return True
+
+
 def run(name: str, only: list[str] = ()) -> dict:
     """Mutate and test module `name`; with `only` (mutant-name globs, e.g. '*.x_accumulate__*'), just
     those, in the copy left by an earlier run if there is one (mutmut keeps each mutant's result)."""
     ws = OUT / name
-    if only and (ws / "mutants").is_dir():
+    if only and (ws / "mutants").is_dir() and _same_sources(name, ws):
         shutil.copytree(ROOT / "tests", ws / "tests", dirs_exist_ok=True, ignore=IGNORE)  # new tests too
     else:
         ws = workspace(name)

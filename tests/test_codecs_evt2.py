@@ -4,7 +4,7 @@ faery agreement and the real Gen3 recording."""
 import numpy as np
 import pytest
 from codec_checks import assert_events_equal, check_kernel_agrees_with_reference, checked_events, with_boundary_examples
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from evstream.codecs import evt2
@@ -52,7 +52,11 @@ word = st.one_of(
 )
 
 
+H = 0x8 << 28  # EV_TIME_HIGH
+
+
 @given(st.lists(word, max_size=200), st.integers(0, 3))
+@example([H | 5] + [(k << 28) | 0x0123456 for k in range(16)], 0)  # every type, the unknown ones too
 def test_decoder_matches_reference_on_random_words(words, tail):
     data = np.array(words, "<u4").tobytes() + b"\x01" * tail
     want, counts = reference_decode(data)
@@ -62,6 +66,7 @@ def test_decoder_matches_reference_on_random_words(words, tail):
 
 
 @given(st.lists(word, max_size=150), st.lists(st.integers(0, 601), max_size=6))
+@example([H | 0xFFFFFFF, H | 0x10, 1 << 28 | 0x0400801, 0x0400801, 1 << 28 | 0x0C00801], [8])  # cut after a wrap
 def test_decoder_is_split_invariant(words, cuts):
     data = np.array(words, "<u4").tobytes()
     edges = [0, *sorted(c for c in cuts if c <= len(data)), len(data)]

@@ -39,6 +39,13 @@ def test_rmw_attachment_matches_zenoh_serializer(seq, t, gid_len):
     assert (a.seq, a.source_time_ns, a.kind, a.gid) == (seq, t, RMW_ZENOH, gid)
 
 
+def test_rmw_attachment_refuses_a_gid_its_one_byte_length_cannot_say():
+    theirs = zext.z_serialize((zext.Int64(1), zext.Int64(2), bytes(127))).to_bytes()
+    assert encode_rmw_attachment(1, 2, bytes(127)) == theirs  # 127: the longest a one-byte LEB128 holds
+    with pytest.raises(ValueError, match="^gid too long for a one-byte LEB128 length$"):
+        encode_rmw_attachment(1, 2, bytes(128))
+
+
 @pytest.mark.parametrize("bad", [b"", b"\x01" * 15, b"\x00" * 16 + b"\x05abc", b"\x00" * 16 + b"\xff" * 12,
                                  b"\x00" * 17])
 def test_bad_attachments_are_errors(bad):
