@@ -319,3 +319,18 @@ def test_dc_rejects_bad_parameters(bad):
 def test_absolute_threshold_as_a_count():
     assert DensityFilter(mode="absolute").n_threshold == 5  # 10 Hz · 25 px · 20 ms
     assert DensityFilter(mode="absolute", radius_px=1, window_us=10_000).n_threshold == 1
+
+
+@pytest.mark.parametrize("coarse", [{"window_us": 1000}, {"mode": "absolute", "window_us": 2000}])
+def test_cascade_score_is_the_coarse_reference_score_over_its_threshold(coarse):
+    """The ROC score of the cascade: the coarse score over the coarse threshold in either mode (-1 where
+    the fine stage calls the event hot), beside the cascade's own uint8 class codes."""
+    s = random_stream(4, 600, G)
+    codes, score = PaperCascade(coarse=coarse, fine={"rate_hz": 5000.0}).classify_scored(s)
+    assert codes.dtype == np.uint8
+    assert np.array_equal(codes, PaperCascade(coarse=coarse, fine={"rate_hz": 5000.0}).classify(s))
+    d = DensityFilter(**coarse)
+    threshold = d.density_hz if d.mode == "absolute" else d.rho_rel
+    hot = codes == NoiseClass.HOT_PIXEL
+    assert hot.any() and (score[hot] == -1).all()
+    assert np.allclose(score[~hot], density_reference(s, d)[1][~hot] / threshold)
