@@ -396,3 +396,13 @@ def test_kernels_equal_plain_python(seed):
     for m in members:
         want[_flat(s, m)] += 1
     assert np.array_equal(counts, want)
+
+
+def test_oa_stride_defaults_to_half_the_window_and_may_equal_it():
+    """OA's default stride is half the window (at least 1 µs); a stride equal to the window is FW."""
+    assert [OverlapAccumulation(window_us=w).stride_us for w in (1, 2, 3, 1001)] == [1, 1, 1, 500]
+    s = random_stream(5, 3000, G)
+    assert_frames_equal(frames_of(OverlapAccumulation(window_us=700), [s]),
+                        frames_of(OverlapAccumulation(window_us=700, stride_us=350), [s]))
+    assert_frames_equal(frames_of(OverlapAccumulation(window_us=700, stride_us=700), [s]),
+                        frames_of(FixedWindow(window_us=700), [s]))
