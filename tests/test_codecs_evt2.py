@@ -55,8 +55,18 @@ word = st.one_of(
 H = 0x8 << 28  # EV_TIME_HIGH
 
 
+def _cd(low: int) -> int:
+    return 1 << 28 | low << 22 | 5 << 11 | 7  # CD_ON at (5, 7), time low bits `low`
+
+
+# wraps (a drop of 2^27 is one, 2^27 - 1 is not), time going back and every other type, each twice
+COUNTED = [H | 0xFFFFFFF, H | 0x10, _cd(63), _cd(0), _cd(63), _cd(0), H | (0x10 + (1 << 27)), H | 0x10,
+           H | (0x10 + (1 << 27) - 1), H | 0x10, _cd(1)] + [k << 28 for k in (0xA, 0xA, 0xE, 0xE, 0xF, 0xF, 2, 2)]
+
+
 @given(st.lists(word, max_size=200), st.integers(0, 3))
 @example([H | 5] + [(k << 28) | 0x0123456 for k in range(16)], 0)  # every type, the unknown ones too
+@example(COUNTED, 0)
 def test_decoder_matches_reference_on_random_words(words, tail):
     data = np.array(words, "<u4").tobytes() + b"\x01" * tail
     want, counts = reference_decode(data)
