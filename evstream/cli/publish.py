@@ -15,23 +15,25 @@ from .live import DEFAULT_KEY, add_zenoh_flags, check_endpoints, session_from_ar
 
 
 def packetize(chunks, packet_us: int):
-    """Re-cut a stream into packets, one per cell of an event-time grid anchored at t = 0."""
+    """Re-cut a stream into packets, one per cell of an event-time grid anchored at t = 0. A cell's end is
+    found by binary search (not a division of every timestamp), and a packet within one chunk is a view
+    of it: only a packet spanning chunks is copied together."""
     pending: list[EventChunk] = []
     cell = None
     for chunk in chunks:
-        if not len(chunk):
-            continue
-        cells = chunk.t // packet_us
-        edges = [0, *(np.flatnonzero(np.diff(cells)) + 1).tolist(), len(chunk)]
-        for a, b in zip(edges[:-1], edges[1:]):
-            c = int(cells[a])
+        n = len(chunk)
+        a = 0
+        while a < n:
+            c = int(chunk.t[a]) // packet_us
             if cell is not None and c != cell and pending:
-                yield concat(pending, chunk.geometry)
+                yield pending[0] if len(pending) == 1 else concat(pending, chunk.geometry)
                 pending = []
             cell = c
-            pending.append(chunk[a:b])
+            b = a + int(np.searchsorted(chunk.t[a:], (c + 1) * packet_us, side="left"))
+            pending.append(chunk if a == 0 and b == n else chunk[a:b])
+            a = b
     if pending:
-        yield concat(pending, pending[0].geometry)
+        yield pending[0] if len(pending) == 1 else concat(pending, pending[0].geometry)
 
 
 def cmd_publish(args) -> int:
