@@ -22,7 +22,7 @@ draws nothing: the lag of ingestion alone (against `full`, what drawing adds).
 
 `native`: the same streams into the native viewer (`--spawn`'s), headless on the CPU (llvmpipe), its
 state read through `rerun.experimental.ViewerClient.get_state` every second (lag = now - the wall-clock
-time of the newest event time it has taken in). Its binary is found on PATH (`.venv/bin`).
+time of the newest event time it has taken in): the `rerun` binary of the installed wheel.
 
 The page size is EVSTREAM_VIEWPORT (default 1600x1000; docs/live.md's numbers: 1024x640).
 `before` is the sink as it was before issue 23 (a call per entity per packet, no wall-clock budget,
@@ -47,7 +47,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 from evstream.sinks.rerun_sink import LIVE_OPTIONS, TIMELINE, RerunSink
-from evstream.sinks.rerun_viewer import free_port, open_output
+from evstream.sinks.rerun_viewer import free_port, open_output, rerun_binary
 
 from evstream.chromium import CHROMIUM, VIEWPORT, HeadlessChromium, viewer_times
 from evstream.events import EventChunk, Geometry
@@ -225,7 +225,7 @@ def run_native(mode: str, rate_hz: float, seconds: float) -> dict:
 
     port = free_port()
     load_before = os.getloadavg()[0]
-    client = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True)
+    client = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True, executable_path=rerun_binary())
     samples = []
     try:
         rec = rr.RecordingStream("evstream")

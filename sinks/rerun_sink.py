@@ -24,9 +24,9 @@ replay speed), and counts what it drops in `points_dropped`; frames and statisti
 What is logged is sent every `send_every_s` of wall-clock time as one column per entity (points, slab
 transform, statistics; the statistics every `stats_every_s`), not as calls per packet: a viewer's cost
 grows with the number of chunks it ingests, not with their size — the web viewer takes in about 10 ms of
-chunks per frame, and under software WebGL on two loaded cores 28 chunks a second put it tens of seconds
-behind while 5 a second kept it within the send interval, at 10 or 100 k points a second alike
-(benchmarks/bench_viewer_lag.py, docs/live.md). A `live` sink also drops, at each send, the points more
+chunks per frame; under software WebGL on two loaded cores a page that drew nothing fell behind at 28
+chunks a second with 10 k points as with 100 k, and kept up at 5–7 (benchmarks/bench_viewer_lag.py,
+docs/live.md). A `live` sink also drops, at each send, the points more
 than `late_s` of event time behind the newest one (a following view shows only the last slab: they are
 the backlog a viewer that fell behind would otherwise queue), counted in `points_late`.
 
