@@ -361,14 +361,14 @@ def _turntable_run(s0, s1, band, bands, first, cos_ph, sin_ph, travel, k, static
 
 @njit(cache=True, nogil=True, inline="always")
 def _ball_value(x, y, cx, cy, radius, cos_spin, sin_spin, background):
-    """(off the ball, the argument of the log, e^-pattern, e^-2edge, r, sin(4r/R)) of a ball pixel:
+    """(off the ball, the argument of the log, e^-pattern, e^-2edge, r) of a ball pixel:
     sin(3θ + spin) from (dx + i dy)^3 / r^3. Off the ball its value is the static texture's
     (log_background) and the rest is not computed; where the edge is saturated, e^-2edge is its largest
     value there."""
     dx, dy = x - cx, y - cy
     r = np.sqrt(dx * dx + dy * dy)
     if 2.0 * (radius - r) <= -SATURATED:
-        return True, 0.0, 1.0, EDGE_OFF, r, 1.0
+        return True, 0.0, 1.0, EDGE_OFF, r
     if r > 0.0:
         c, s = dx / r, dy / r
     else:
@@ -383,7 +383,7 @@ def _ball_value(x, y, cx, cy, radius, cos_spin, sin_spin, background):
     else:
         e_edge = np.exp(-(2.0 * edge))
         inside = 1.0 / (1.0 + e_edge)
-    return False, background * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05, e_pattern, e_edge, r, ring
+    return False, background * (1 - inside) + inside * (0.25 + 0.6 * patches) + 0.05, e_pattern, e_edge, r
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -410,6 +410,7 @@ def _ball_stays(off, e_pattern, e_edge, background, grow_pattern, grow_edge, v_l
             and base + max(max(c1, c2), max(c3, c4)) < v_hi * (1.0 - 1e-12))
 
 
+RING_PX = 0.25  # radius rings of the pattern-rate table
 REACH_PX = 0.1 * 2.0 ** np.arange(-8, 11)  # the travels a ball pixel may be given (REACH_PX[-1] = 102 px)
 
 
@@ -428,23 +429,37 @@ def _pattern_rate(r, ring, radius, d):
 
 
 @njit(cache=True, nogil=True)
-def _ball_reach(off, e_pattern, e_edge, r, ring, background, radius, edge_grow, k, v_lo, v_hi):
+def _ball_reach(off, e_pattern, e_edge, r, background, grow, k, v_lo, v_hi):
     """The index into REACH_PX of a travel of the ball this pixel stays safe for, from the last answer `k`:
     one up if that is safe (a pixel is looked at often: no need to climb further at once), else `k` if
-    safe, else down by two until safe; -1 where none is (look again next step). Over a travel d the pattern
-    argument moves by at most `_pattern_rate` * d, the edge value by 2 d (edge_grow[k] = e^(4 d))."""
-    if k + 1 < len(edge_grow):
-        d = REACH_PX[k + 1]
-        if _ball_stays(off, e_pattern, e_edge, background, np.exp(_pattern_rate(r, ring, radius, d) * d * (1 + 1e-9)),
-                       edge_grow[k + 1], v_lo, v_hi):
-            return k + 1
+    safe, else down by two until safe; -1 where none is (look again next step). grow[0, k] = e^(4 d) (the
+    edge value moves by at most 2 d over a travel d), grow[1 + j, k] = e^(rate * d) for a pixel at radius
+    r in [j, j + 1) * RING_PX (the pattern argument moves by at most rate * d, `_pattern_rate`)."""
+    j = 1 + min(int(r / RING_PX), grow.shape[0] - 2)
+    if k + 1 < grow.shape[1] and _ball_stays(off, e_pattern, e_edge, background, grow[j, k + 1], grow[0, k + 1],
+                                             v_lo, v_hi):
+        return k + 1
     while k >= 0:
-        d = REACH_PX[k]
-        if _ball_stays(off, e_pattern, e_edge, background, np.exp(_pattern_rate(r, ring, radius, d) * d * (1 + 1e-9)),
-                       edge_grow[k], v_lo, v_hi):
+        if _ball_stays(off, e_pattern, e_edge, background, grow[j, k], grow[0, k], v_lo, v_hi):
             return k
         k -= 2
     return -1
+
+
+def _ball_grow(radius):
+    """The growth factors `_ball_reach` uses (see there), per radius ring of RING_PX and travel REACH_PX; the
+    last ring, everything beyond the ball, takes the bound that holds everywhere (136.5 / R)."""
+    rings = int((radius + SATURATED / 2) / RING_PX) + 2
+    grow = np.empty((rings + 1, len(REACH_PX)))
+    grow[0] = np.exp(4.0 * REACH_PX * (1.0 + 1e-9))
+    for j in range(rings):
+        r = (j + 0.5) * RING_PX  # every r of the ring is within RING_PX / 2 of it: a neighbourhood that much wider
+        for k, d in enumerate(REACH_PX):
+            wider = d + RING_PX / 2
+            rate = 136.5 / radius if j == rings - 1 else _pattern_rate(r, math.sin(r / radius * 4.0), radius, wider)
+            x = rate * d * (1.0 + 1e-9)
+            grow[1 + j, k] = math.exp(x) if x < 700.0 else math.inf
+    return grow
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -456,7 +471,7 @@ V_PREV, V_STEP, V_LO, V_HI, REACH, BG, LOG_BG = range(7)  # a ball pixel's state
 
 
 @njit(cache=True, nogil=True)
-def _ball_run(s0, s1, band, bands, cx, cy, cos_spin, sin_spin, boxes, travel, radius, edge_grow, px, wake, state,
+def _ball_run(s0, s1, band, bands, cx, cy, cos_spin, sin_spin, boxes, travel, radius, grow, px, wake, state,
               step_us, refractory_us, step_cap, out, n):
     """Steps s0..s1-1 of the ball over each step's box, its rows in `band` of `bands` (interleaved;
     per-step arrays are indexed by step). A pixel is
@@ -478,8 +493,7 @@ def _ball_run(s0, s1, band, bands, cx, cy, cos_spin, sin_spin, boxes, travel, ra
                     continue
                 st = state[y, x]
                 bg = st[BG]
-                off, v, e_pattern, e_edge, r, ring = _ball_value(x, y, cx[s], cy[s], radius, cos_spin[s], sin_spin[s],
-                                                                 bg)
+                off, v, e_pattern, e_edge, r = _ball_value(x, y, cx[s], cy[s], radius, cos_spin[s], sin_spin[s], bg)
                 if off:
                     crosses = _crosses(st[LOG_BG], ref[y, x], thr_on[y, x], thr_off[y, x])
                 else:
@@ -495,7 +509,7 @@ def _ball_run(s0, s1, band, bands, cx, cy, cos_spin, sin_spin, boxes, travel, ra
                         if q == st[V_STEP]:
                             a = st[LOG_BG] if st[V_PREV] < 0.0 else np.log(st[V_PREV])
                         else:
-                            o, u, _, _, _, _ = _ball_value(x, y, cx[q], cy[q], radius, cos_spin[q], sin_spin[q], bg)
+                            o, u, _, _, _ = _ball_value(x, y, cx[q], cy[q], radius, cos_spin[q], sin_spin[q], bg)
                             a = _ball_log(o, u, st[LOG_BG])
                     n = _cross(a, _ball_log(off, v, st[LOG_BG]), y, x, ref, thr_on, thr_off, last_t, t_prev,
                                step_us, refractory_us, x, y, out, n, limit)
@@ -503,8 +517,7 @@ def _ball_run(s0, s1, band, bands, cx, cy, cos_spin, sin_spin, boxes, travel, ra
                     st[V_HI] = np.exp(ref[y, x] + thr_on[y, x] - MARGIN)
                 st[V_PREV] = -1.0 if off else v
                 st[V_STEP] = s
-                k = _ball_reach(off, e_pattern, e_edge, r, ring, bg, radius, edge_grow, int(st[REACH]), st[V_LO],
-                                st[V_HI])
+                k = _ball_reach(off, e_pattern, e_edge, r, bg, grow, int(st[REACH]), st[V_LO], st[V_HI])
                 st[REACH] = max(k, 0)
                 wake[y, x] = _wake(travel, s, s, 1, REACH_PX[k] * (1.0 - 1e-9) - 1e-9) if k >= 0 else s + 1
     return n, s1
@@ -655,7 +668,7 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
                           np.exp(px[1] + px[2] - MARGIN), np.full(background.shape, 8.0), background,
                           _log(background)], axis=-1)
         wake = np.zeros(background.shape, np.int64)
-        edge_grow = np.exp(4.0 * REACH_PX * (1.0 + 1e-9))
+        grow = _ball_grow(radius)
         steps = {}  # per-step parameters, indexed by step, for every step simulated so far
 
         def extend(s1):  # known steps: to s1 and some way beyond, so that wake-ups can look ahead
@@ -682,7 +695,7 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
         def run(s0, s1):
             extend(s1)
             return _in_bands(_ball_run, s0, s1, (steps["cx"], steps["cy"], steps["cos"], steps["sin"], steps["boxes"],
-                                                 steps["travel"], radius, edge_grow, px, wake, state, model.step_us,
+                                                 steps["travel"], radius, grow, px, wake, state, model.step_us,
                                                  model.refractory_us), buffers, step_cap)
 
         return run

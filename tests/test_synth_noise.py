@@ -165,25 +165,24 @@ def test_ball_reach_is_safe():
 
     rng = np.random.default_rng(6)
     radius = 25.4
-    edge_grow = np.exp(4.0 * synth.REACH_PX * (1.0 + 1e-9))
+    grow = synth._ball_grow(radius)
     checked = far = 0
     for _ in range(1500):
         x, y = int(rng.integers(0, 80)), int(rng.integers(0, 80))
         cx, cy = rng.uniform(0, 80, 2)
         bg = float(rng.uniform(0.3, 0.4))
         spin = cx / radius
-        off, v, e_pattern, e_edge, r, ring = synth._ball_value(x, y, cx, cy, radius, np.cos(spin), np.sin(spin), bg)
+        off, v, e_pattern, e_edge, r = synth._ball_value(x, y, cx, cy, radius, np.cos(spin), np.sin(spin), bg)
         b = np.log(bg + 0.05) if off else np.log(v)
         on, thr_off = rng.uniform(0.05, 0.4, 2)
         ref = b + rng.uniform(-thr_off, on)
         v_lo, v_hi = np.exp(ref - thr_off + synth.MARGIN), np.exp(ref + on - synth.MARGIN)
-        k = synth._ball_reach(off, e_pattern, e_edge, r, ring, bg, radius, edge_grow,
-                              int(rng.integers(0, len(edge_grow))), v_lo, v_hi)
+        k = synth._ball_reach(off, e_pattern, e_edge, r, bg, grow, int(rng.integers(0, grow.shape[1])), v_lo, v_hi)
         if k < 0:
             continue
         far += synth.REACH_PX[k] >= 0.8
         for _ in range(10):
-            d = synth.REACH_PX[k] * rng.uniform(0, 1) * (1 - 1e-9)
+            d = synth.REACH_PX[k] * rng.choice([rng.uniform(0, 1), 1 - rng.uniform(0, 1e-3)]) * (1 - 1e-9)
             a = rng.uniform(0, 2 * np.pi)
             nx, ny = cx + d * np.cos(a), cy + d * np.sin(a)
             o, u, *_ = synth._ball_value(x, y, nx, ny, radius, np.cos(nx / radius), np.sin(nx / radius), bg)
