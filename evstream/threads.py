@@ -111,8 +111,8 @@ class ReadAhead:
 
 class WriteBehind:
     """Call `write(item)` on a thread for every `put(item)`, in order, at most `depth` items waiting.
-    `close()` waits until everything put is written. An error in `write` is raised by the next `put` or
-    by `close`; the items put after it are dropped (a sink that failed writes nothing more)."""
+    `close()` waits until everything put is written. An error in `write` is raised (once) by the next `put`
+    or by `close`; the items put after it are dropped (a sink that failed writes nothing more)."""
 
     def __init__(self, write: Callable[[Any], None], depth: int = 2, name: str = "evstream-writer"):
         if depth < 1:
@@ -120,6 +120,7 @@ class WriteBehind:
         self._write = write
         self._queue: queue.Queue = queue.Queue(maxsize=depth)
         self._error: BaseException | None = None
+        self._raised = False
         self._closed = False
         self.cpu_s = 0.0  # the writer thread's CPU time, once it ended
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -142,6 +143,8 @@ class WriteBehind:
         if self._closed:
             raise RuntimeError("WriteBehind: put after close")
         self._raise()
+        if self._error is not None:
+            return  # failed and said so: dropped
         while True:
             try:
                 self._queue.put(item, timeout=_POLL_S)
@@ -150,7 +153,8 @@ class WriteBehind:
                 self._raise()  # a failed writer still drains, but say so now
 
     def _raise(self) -> None:
-        if self._error is not None:
+        if self._error is not None and not self._raised:
+            self._raised = True  # once: a caller cleaning up after it (closing sinks) is not stopped again
             raise self._error
 
     def close(self, *, check: bool = True) -> None:

@@ -117,8 +117,12 @@ def test_write_behind_error_is_raised_by_a_later_put_or_close_and_drops_the_rest
     w.close(check=False)
     assert written == [0, 1, 2]
     assert isinstance(w.error, OSError)
+    w.close()  # said once: cleaning up after it (closing the sinks) is not stopped by it again
+    w2 = WriteBehind(write, depth=1)
+    for i in range(4):  # item 3 fails after the last put: only close can say so
+        w2.put(i)
     with pytest.raises(OSError, match="disk said no"):
-        w.close()
+        w2.close()
 
 
 def _rechunk(chunk: EventChunk, cuts) -> list[EventChunk]:
