@@ -618,8 +618,7 @@ def turntable(geometry: Geometry, *, duration_s: float, sectors: int = 4, rev_hz
 
         def run(s0, s1):
             kphase = k * phase_at(_step_times(s0 - 1, s1, model.step_us))
-            cos_ph = np.array([np.cos(float(v)) for v in kphase])  # one by one, as before: the same bits
-            sin_ph = np.array([np.sin(float(v)) for v in kphase])
+            cos_ph, sin_ph = np.cos(kphase), np.sin(kphase)  # bit for bit what np.cos of each value gives
             travel = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(kphase)))))
             return _in_bands(_turntable_run, s0, s1, (s0, cos_ph, sin_ph, travel, k, static, px, safe, limits,
                                                        model.step_us, model.refractory_us), buffers, step_cap)
@@ -678,8 +677,7 @@ def ball(geometry: Geometry, *, duration_s: float, speed_px_s=(60.0, 600.0), rad
             t = _step_times(known, s1 + 2_000, model.step_us)
             cx, cy = centre(t)
             spin = cx / radius
-            new = {"cx": cx, "cy": cy, "cos": np.array([np.cos(float(v)) for v in spin]),  # one by one, as
-                   "sin": np.array([np.sin(float(v)) for v in spin]),  # before: the same bits
+            new = {"cx": cx, "cy": cy, "cos": np.cos(spin), "sin": np.sin(spin),  # as np.cos of each value
                    "boxes": boxes(t - model.step_us * 1e-6, t)}
             if known:
                 moved = np.hypot(np.diff(cx, prepend=steps["cx"][-1]), np.diff(cy, prepend=steps["cy"][-1]))
