@@ -245,7 +245,9 @@ def test_slow_subscribers_block_loses_nothing_ring_counts_drops(procs):
     block = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--flow", "block", "--depth", "4",
                              "--delay-ms", "4", "--until-end", "--idle-s", "40")
     ring = procs.subscriber(port, "evstream/cam1/events", "--denoise", "none", "--flow", "ring", "--depth", "2",
-                            "--delay-ms", "25", "--idle-s", "4")
+                            "--delay-ms", "25", "--until-end", "--idle-s", "40")
+    # the end mark is the newest sample, so the ring keeps it; an idle stop of a few seconds ran out under
+    # load before the publisher had even started
     sent = procs.result(procs.start("publish", str(TURNTABLE), "--key", "evstream/cam1/events", "--connect", ep,
                                     "--speed", "0", "--wait-subscribers", "10", "--drain-s", "30", "--json"))
     b = procs.result(block)["cameras"]["cam1"]
