@@ -57,9 +57,17 @@ def _is_recording(path: Path) -> bool:
 def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
     """One task per recording: a file goes to OUT/NAME, a folder's recordings (walked, sorted) to
     OUT/PATH-BELOW-THE-FOLDER, a glob's matches to OUT/PATH-BELOW-THE-GLOB'S-FIXED-PART; each with its
-    suffix replaced by `suffix` (".mcap"). Raises ValueError for an input that matches nothing, or when
-    two recordings would write the same output."""
+    suffix replaced by `suffix` (".mcap"). A walk or a glob passes over OUT (which may lie in the input
+    tree): an earlier run's outputs are not recordings to process again (they would nest OUT/OUT/... one
+    level deeper each run). Raises ValueError for an input that matches nothing, or when two recordings
+    would write the same output."""
     out_dir = Path(out_dir)
+    out_real = os.path.realpath(out_dir)
+
+    def outside_out(p: Path) -> bool:
+        real = os.path.realpath(p)
+        return real != out_real and not real.startswith(out_real.rstrip(os.sep) + os.sep)
+
     tasks: list[Task] = []
     for text in inputs:
         given = Path(text)
@@ -73,14 +81,16 @@ def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
             found = sorted(Path(p) for p in glob.glob(text, recursive=True))
             found = [p for p in found if _is_recording(p)] + [
                 q for p in found if p.is_dir() for q in sorted(p.rglob("*")) if _is_recording(q)]
-            pairs = [(p, p.relative_to(base)) for p in found]
+            pairs = [(p, p.relative_to(base)) for p in found if outside_out(p)]
             if not pairs:
-                raise ValueError(f"{text}: matches no recording")
+                raise ValueError(f"{text}: matches no recording" + (f" outside the output folder {out_dir}"
+                                                                    if found else ""))
         elif given.is_dir():
-            pairs = [(p, p.relative_to(given))
-                     for p in sorted(given.rglob("*")) if _is_recording(p)]
+            walked = [p for p in sorted(given.rglob("*")) if _is_recording(p)]
+            pairs = [(p, p.relative_to(given)) for p in walked if outside_out(p)]
             if not pairs:
-                raise ValueError(f"{text}: a folder with no recording in it ({', '.join(RECORDING_SUFFIXES)})")
+                where = f" outside the output folder {out_dir}" if walked else ""
+                raise ValueError(f"{text}: a folder with no recording in it{where} ({', '.join(RECORDING_SUFFIXES)})")
         elif given.exists():
             pairs = [(given, Path(given.name))]
         else:

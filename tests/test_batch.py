@@ -172,6 +172,32 @@ def test_rerun_skips_what_is_done_and_reports_a_bad_recording(client, dataset, t
     assert json.loads(capsys.readouterr().out)["done"] == 6
 
 
+def test_an_output_folder_inside_the_input_tree_is_not_read_back(client, dataset, tmp_path, capsys):
+    """`archive DATA/ DATA/clean/` run twice: the second run skips every recording and reads none of the
+    first run's archives back as recordings (it used to archive DATA/clean/*.mcap into DATA/clean/clean/,
+    one level deeper each run); the same for a glob reaching into OUT, and OUT named as the input itself."""
+    data = tmp_path / "data"
+    shutil.copytree(dataset / "synthetic", data)
+    out = data / "clean"
+    argv = ["archive", str(data), str(out), "--scheduler", client.scheduler.address, *FLAGS, "--json"]
+    assert main(argv) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert (first["done"], first["skipped"]) == (3, 0)
+    made = sorted(p.relative_to(data).as_posix() for p in data.rglob("*.mcap"))
+    assert made == ["clean/ball.mcap", "clean/bar.mcap", "clean/turntable.mcap"]
+    assert main(argv) == 0
+    second = json.loads(capsys.readouterr().out)
+    assert (second["done"], second["skipped"], second["failed"]) == (0, 3, 0)
+    assert sorted(p.relative_to(data).as_posix() for p in data.rglob("*.mcap")) == made
+    globbed = batch.plan([str(data / "**")], out, ".mcap")
+    assert sorted(Path(t.source).name for t in globbed) == ["ball.npz", "bar.npz", "turntable.npz"]
+    link = tmp_path / "link"
+    link.symlink_to(out)  # the same folder by another name
+    assert all(Path(t.source).parent == data for t in batch.plan([str(data)], link, ".mcap"))
+    assert main(["archive", str(out), str(out), "--quiet"]) == 2
+    assert "no recording in it outside the output folder" in capsys.readouterr().err
+
+
 def test_convert_many_writes_what_the_one_file_command_writes(client, dataset, tmp_path, capsys):
     out = tmp_path / "out"
     argv = ["convert", str(dataset / "synthetic" / "b*.npz"), str(dataset / "turntable.npz"), str(out), "--to", "raw",
