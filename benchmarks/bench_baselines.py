@@ -5,8 +5,9 @@ Stream (same as bench_paper): a synthetic scene (turntable at 346×260 for 1 s, 
 default parameters: the bare kernel over the whole stream (`classify`), the stage as a pipeline runs
 it (50k-event chunks), and the scored pass (`classify_scored`); then its state size and its quality at
 the default operating point (TPR, EDP) and over all thresholds (AUC of the one-pass scores).
-Anchors on this machine (DESIGN.md §10): plain numba BAF 90–160 M ev/s, dv-processing's C++ BAF
-28–47 M ev/s.
+`classify` and the stage run the class-only compiled variants (no score computed); the scored pass
+the variants with the score. The BAF stage beside a plain numba BAF and dv-processing's C++ filters,
+same events, same run: `python -m benchmarks paper` (bench_paper.py).
 """
 
 from __future__ import annotations

@@ -204,16 +204,20 @@ class TimeSeriesFilter(InPlaceClassifier):
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
         kernel = dc_kernel(self._options, want_score)
         live = np.empty(min(n, BLOCK_EVENTS), np.int64)
-        cursor = np.empty(2, np.int64)
         t, x, y = chunk.t, chunk.x, chunk.y
-        for a in range(0, n, BLOCK_EVENTS):  # the stage is chunk-invariant: blocks keep `live` in cache
-            b = min(n, a + BLOCK_EVENTS)
-            cursor[:] = (0, -1)
-            while not kernel(t[a:b], x[a:b], y[a:b], live, cursor, codes[a:b], *self._args,
-                             score[a:b] if want_score else score):
-                grow_fifo(s, ("fifo_pos",))
-                self._bind()
+        if n <= BLOCK_EVENTS:
+            self._judge(kernel, t, x, y, live, codes, score)
+        else:  # the stage is chunk-invariant: blocks keep `live` in cache, with the same classes
+            for a in range(0, n, BLOCK_EVENTS):
+                b = a + BLOCK_EVENTS
+                self._judge(kernel, t[a:b], x[a:b], y[a:b], live, codes[a:b], score[a:b] if want_score else score)
         return score
+
+    def _judge(self, kernel, t, x, y, live, codes, score) -> None:
+        cursor = np.array([0, -1], np.int64)  # no live event gathered yet
+        while not kernel(t, x, y, live, cursor, codes, *self._args, score):
+            grow_fifo(self._state, ("fifo_pos",))
+            self._bind()
 
     def _bind(self) -> None:
         """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
