@@ -50,7 +50,7 @@ def dc_kernel(options, want_score):
                fifo_state, bin_us, n_bins, lam, width, height, out_score):
         """For each event still SIGNAL in `codes`: mark its pixel active in the event's bin, compare the
         pixel's active bins with its neighbours' mean, write `noise_code` when hot (and the score if
-        `want_score`). The events still SIGNAL are gathered once into `live` (length len(t)), then
+        `want_score`). The events still SIGNAL are gathered once into `live` (length >= len(t)), then
         judged from `cursor` = [next live index, live count (-1: not gathered yet)]; returns True when
         all are done, False when the FIFO is full (the caller grows it and calls again: no re-gather).
 
