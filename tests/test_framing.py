@@ -406,3 +406,17 @@ def test_oa_stride_defaults_to_half_the_window_and_may_equal_it():
                         frames_of(OverlapAccumulation(window_us=700, stride_us=350), [s]))
     assert_frames_equal(frames_of(OverlapAccumulation(window_us=700, stride_us=700), [s]),
                         frames_of(FixedWindow(window_us=700), [s]))
+
+
+# the next event on the end of the frame where skipping starts (2800), of the one after (3400), of a far
+# one, and on none
+@pytest.mark.parametrize("gap_us", [2800, 3400, 600 * 10**6 + 1000, 600 * 10**6 + 1234])
+def test_adaptive_with_a_fixed_overlap_skips_empty_frames_onto_oa_grid(gap_us):
+    """With k = 0 the overlap stays at its initial value: adaptive is OA with stride Δt − O, and after a
+    long quiet stretch it must land on the same frames as OA does (also when an event falls exactly
+    on a frame's end)."""
+    s = EventChunk.from_arrays([0, 5, gap_us, gap_us + 7], [1, 2, 3, 4], [1, 2, 3, 4], [1, 0, 1, 1], G)
+    adaptive = frames_of(AdaptiveOverlap(window_us=1000, n_base=10, k_us_per_event=0, overlap_max_us=900,
+                                         overlap_init_us=400, max_empty_frames=2), [s])
+    assert_frames_equal(adaptive, frames_of(OverlapAccumulation(window_us=1000, stride_us=600, max_empty_frames=2),
+                                            [s]))
