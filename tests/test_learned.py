@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evstream.denoise.learned import FEATURES, LearnedFilter, Model, ModelError, load
-from evstream.denoise.learned.features import HOT_SCORE, reference_features
+from evstream.denoise.learned.features import FEATURE_VERSION, HOT_SCORE, N_BINS, reference_features
 from evstream.denoise.learned.model import DEFAULT_MODEL
 from evstream.denoise.learned.train import KEEP_GRID, features_of
 from evstream.events import Geometry, NoiseClass
@@ -41,6 +41,19 @@ def test_features_match_the_definition(seed, n, mean_dt_us, geometry):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
 
 
+@settings(max_examples=5, deadline=None)
+@given(st.integers(0, 2**32), st.integers(0, 2**40))
+def test_features_match_the_definition_across_long_gaps(seed, gap_us):
+    """Gaps of hours and days: the last-event map's 31-bit ticks are rebased, which changes no feature."""
+    s = random_stream(seed, 200, mean_dt_us=500.0)
+    t = s.t.copy()
+    t[70:] += gap_us
+    t[140:] += 3 * (1 << 34)  # past the rebase point (2^30 ticks of 16 µs) from any start
+    s = s.replace(t=t)
+    want = reference_features(s.t, s.x, s.y, s.p, s.geometry.width, s.geometry.height)
+    np.testing.assert_allclose(features_of(s), want, rtol=0, atol=1e-9)
+
+
 @settings(max_examples=10, deadline=None)
 @given(st.integers(0, 2**32), st.sampled_from(["logistic", "mlp"]))
 def test_scores_and_codes_match_numpy_inference(seed, kind):
@@ -50,7 +63,9 @@ def test_scores_and_codes_match_numpy_inference(seed, kind):
     codes, score = stage.classify_scored(s.replace(label=None))
     feats = features_of(s)
     own, n = np.round(np.expm1(feats[:, 2])), np.round(np.expm1(feats[:, 0]))
-    hot = (own >= 4) & (3 * own > n)  # the hot-pixel rule (features.py)
+    dc_own, dc_nb = np.round(feats[:, 9] * N_BINS), np.round(feats[:, 10] * 8 * N_BINS)
+    # the hot-pixel rules (features.py): the 20 ms count, and the DC margin (dc_lam of 8 · 64 bins)
+    hot = ((own >= 4) & (3 * own > n)) | (8 * dc_own - dc_nb > np.floor(stage.dc_lam * 8 * N_BINS))
     want = np.where(hot, HOT_SCORE, model.score(feats))
     np.testing.assert_allclose(score, want, rtol=1e-9, atol=1e-9)
     assert (codes[hot] == NoiseClass.HOT_PIXEL).all()
@@ -90,7 +105,7 @@ def test_state_is_bounded():
 
 def test_model_file_round_trip_and_same_bytes(tmp_path):
     m = random_model(5)
-    m.meta.update({"feature_version": 1, "features": list(FEATURES), "keep": 0.85})
+    m.meta.update({"feature_version": FEATURE_VERSION, "features": list(FEATURES), "keep": 0.85})
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     m.save(a)
     m.save(b)
@@ -104,7 +119,7 @@ def test_model_file_round_trip_and_same_bytes(tmp_path):
 
 def test_bad_model_files_are_one_line_errors(tmp_path):
     m = random_model(6)
-    m.meta.update({"feature_version": 1, "features": list(FEATURES), "keep": 0.85})
+    m.meta.update({"feature_version": FEATURE_VERSION, "features": list(FEATURES), "keep": 0.85})
     good = tmp_path / "good.npz"
     m.save(good)
     cut = tmp_path / "cut.npz"
@@ -126,7 +141,7 @@ def test_bad_model_files_are_one_line_errors(tmp_path):
 
 def test_model_file_holds_no_pickle(tmp_path):
     m = random_model(7, "logistic")
-    m.meta.update({"feature_version": 1, "features": list(FEATURES), "keep": 0.85})
+    m.meta.update({"feature_version": FEATURE_VERSION, "features": list(FEATURES), "keep": 0.85})
     m.save(tmp_path / "m.npz")
     with np.load(tmp_path / "m.npz", allow_pickle=False) as z:
         assert all(z[k].dtype != object for k in z.files)

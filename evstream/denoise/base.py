@@ -9,17 +9,17 @@ import numpy as np
 from ..events import EventChunk, NoiseClass
 
 
-def grow_fifo(state: dict, keys: tuple[str, ...]) -> None:
+def grow_fifo(state: dict, keys: tuple[str, ...], state_key: str = "fifo_state") -> None:
     """Double the FIFO rings `state[k]` a kernel fills (it returns early when they are full), unrolling
-    them so that the head is at 0; `state["fifo_state"]` starts with [head, size]."""
-    head, size = state["fifo_state"][:2]
+    them so that the head is at 0; `state[state_key]` starts with [head, size]."""
+    head, size = state[state_key][:2]
     cap = len(state[keys[0]])
     order = (head + np.arange(size)) % cap
     for k in keys:
         new = np.zeros(2 * cap, state[k].dtype)
         new[:size] = state[k][order]
         state[k] = new
-    state["fifo_state"][:2] = (0, size)
+    state[state_key][:2] = (0, size)
 
 
 class Classifier:

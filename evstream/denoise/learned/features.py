@@ -9,20 +9,25 @@ For event m at (x, y, t, p), from the events before it only (FEATURES, version F
   to one 5×5 box, log((g + 1) · 25 / (W·H)), and the same for m's 16×16 block — so that a score can
   compare the local count with what background alone would give, whatever the noise rate and the
   sensor size (counts above 65535 are looked up at 1/64 resolution: 0.1 % error);
-- neighbour support from the last timestamp of each pixel (self excluded): the 8 neighbours that
-  fired within 2 ms (any polarity), within 10 ms and 50 ms (same polarity), as fractions (the 24 of the
-  5×5 box within 20 ms were measured too: +0.1 EDP at 100 % noise for 16 more reads, dropped);
-- log1p of the time since the pixel's own last event, in ms (quantised to 64 µs, capped at 262 ms).
+- neighbour support from the last event of each of the 8 neighbours, its time in ticks of 16 µs: the
+  fraction that fired within 125 ticks (2 ms, any polarity), within 625 and 3125 ticks (10 and 50 ms,
+  same polarity) — ages in whole ticks, ⌊t/16⌋ − ⌊t_q/16⌋;
+- log1p of the time since the pixel's own last event, in ms (quantised to 4 ticks, capped at 262 ms);
+- the paper's DC components (Jiang et al., the fine stage, evstream/denoise/timeseries.py): over the
+  last 64 activity bins of 4 ms (bins anchored at t = 0, the current one included), the fraction a
+  pixel was active in — DC_own for m's pixel, DC_nb the mean over its 8 neighbours (off-sensor
+  neighbours count as never active). A hot pixel is active in nearly every bin, its neighbours not.
 
-State: a last-timestamp-and-polarity map, a row-summed count map per polarity (`rowsum`), the own
-and block counts, and a FIFO of the window's events: O(W·H + events per 20 ms), bounded.
+State, all bounded (O(W·H + events per 20 ms + activations per 256 ms)): one int64 word per pixel
+(last tick and polarity, 20 ms count, DC count and last active bin: the 8 neighbours cost one read
+each), a row-summed count map packing all and ON counts (`rowsum`), block counts, the FIFO of the
+window's events and the FIFO of the DC activations.
 
-After the model, one rule: an event whose pixel fired `hot_min` (4) times or more in the last 20 ms,
-and more than a third of the events of its 5×5 box (its own included), is a HOT_PIXEL (score
-HOT_SCORE). Measured at 100 % noise (a model trained on the six real recordings): the logistic score
-alone removed 91.1 % (N-Caltech101) and 97.2 % (DVXplorer) of the hot-pixel events — the kept ones
-are 200–1600 Hz pixels in busy areas, whose own events fill the box count — with the rule 98.0 % and
-99.7 %, for 0.05 % and 0.03 % of the signal.
+After the model, two rules (a linear score cannot express either) make an event a HOT_PIXEL (score
+HOT_SCORE): its pixel fired `hot_min` (4) times or more in the last 20 ms and more than a third of its
+5×5 box's events; or DC_own − DC_nb > `dc_lam` (0.2), the paper's fine-stage test. Leave-one-recording-out
+(docs/learned.md) the first rule alone missed hot pixels beside another hot pixel (the pair fills the
+box count); the DC rule catches them.
 
 One kernel is compiled per configuration (hidden units 0 = logistic score, else a one-hidden-layer
 ReLU MLP; scores, feature rows, whether earlier stages rejected events): no option costs anything per
@@ -40,33 +45,39 @@ from numba import njit
 from ...nowrap import ix
 from ..rowsum import column_sum, padded_map, row_add
 
-FEATURE_VERSION = 1
+FEATURE_VERSION = 2
 FEATURES = (
     "log1p_n_5x5_20ms", "log1p_n_same_5x5_20ms", "log1p_own_20ms", "log_ref_global", "log_ref_block",
-    "nb8_any_2ms", "nb8_same_10ms", "nb8_same_50ms", "log1p_age_ms",
+    "nb8_any_2ms", "nb8_same_10ms", "nb8_same_50ms", "log1p_age_ms", "dc_own", "dc_nb8",
 )
 N_FEATURES = len(FEATURES)
 RADIUS_PX = 2          # the 5×5 box
 WINDOW_US = 20_000     # the counts' window
 BLOCK_PX = 16          # the block reference
-SUPPORT_US = (2_000, 10_000, 50_000)  # nb8 any, nb8 same, nb8 same
-HISTORY_US = 50_000    # the longest time a feature looks back
-AGE_SHIFT = 6          # age quantised to 64 µs
+TICK_US = 16           # the last-event map's time unit: neighbour ages in whole ticks
+SUPPORT_TICKS = (125, 625, 3125)  # 2, 10, 50 ms: nb8 any, nb8 same, nb8 same
+BIN_US = 4_000         # DC: activity bins of 4 ms (the paper's fs = 250 Hz) ...
+N_BINS = 64            # ... 64 of them (256 ms)
+HISTORY_US = N_BINS * BIN_US  # the longest time a feature looks back
+AGE_SHIFT = 2          # age quantised to 4 ticks = 64 µs
 AGE_CELLS = 4096       # ... up to 4096 · 64 µs = 262 ms
 LOG_CELLS = 1 << 16    # log1p table for counts
-NEVER_US = -(2**61)
-HOT_SCORE = -1e9       # the score of an event the hot-pixel rule rejects  # (t << 1) stays in int64
+FAR_TICKS = 1 << 20    # "never" and anything older: far past every window and cap
+REBASE_TICKS = 1 << 30  # the 31-bit tick field is rebased (an O(W·H) pass) once every ~4.8 h of stream
+HOT_SCORE = -1e9       # the score of an event a hot-pixel rule rejects
+DC_MARGIN = 51         # the DC rule: 8 · DC_own - Σ DC_nb > 51 bins, i.e. DC_own - mean DC_nb > 0.1
 
 LARGE_SHIFT = 6
 LOG_LARGE = math.log(1 << LARGE_SHIFT)
 LOG1P = np.log1p(np.arange(LOG_CELLS, dtype=np.float64))
-AGE_LOG1P_MS = np.log1p(np.arange(AGE_CELLS, dtype=np.float64) * (1 << AGE_SHIFT) / 1000.0)
+AGE_LOG1P_MS = np.log1p(np.arange(AGE_CELLS, dtype=np.float64) * (TICK_US << AGE_SHIFT) / 1000.0)
 
-
-def offsets(width_padded: int) -> np.ndarray:
-    """Flat offsets of the 8 neighbours (self excluded) in a map padded by RADIUS_PX."""
-    inner = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
-    return np.array([dy * width_padded + dx for dy, dx in inner], np.int64)
+# One int64 word per pixel (padded like the count map) holds everything read about a pixel, so that
+# the 8 neighbours cost one read each: bits 0-31 (tick << 1) | polarity of its last event, the tick
+# counted from `base` (0 = never); 32-47 its event count in the last 20 ms; 48-55 its last active DC bin
+# modulo 256; 56-62 its active bins among the last N_BINS.
+OWN_ONE = 1 << 32
+DC_ONE = 1 << 56
 
 
 def block_log_scale(width: int, height: int) -> np.ndarray:
@@ -84,18 +95,19 @@ def new_state(width: int, height: int) -> dict:
     cap = 1 << 12
     return {
         "width_padded": wp,
-        "last": np.full((height + 2 * r) * wp, NEVER_US << 1, np.int64),  # (t << 1) | p
+        "word": np.zeros((height + 2 * r) * wp, np.int64),
         # one row-summed map, each cell packing (all events) | (ON events) << 16: one read per row gives
         # both N and N_ON (counts per 20 ms in a 5×5 box stay far below 65536)
         "hsum": padded_map(width, height, r, np.uint32),
-        "own": np.zeros(width * height, np.uint16),
         "block": np.zeros(-(-width // BLOCK_PX) * -(-height // BLOCK_PX), np.int32),
         "block_log_scale": block_log_scale(width, height),
-        "offsets": offsets(wp),
-        "fifo_t": np.zeros(cap, np.int64),
-        "fifo_pos": np.zeros(cap, np.int64),
-        "fifo_pix": np.zeros(cap, np.int64),
-        "fifo_state": np.zeros(2, np.int64),
+        "fifo_t": np.zeros(cap, np.int64),   # the 20 ms window's events: time ...
+        "fifo_pos": np.zeros(cap, np.int64),  # ... and count-map row | polarity << 32 | block << 33
+        "fifo_state": np.zeros(2, np.int64),  # head, size
+        "dc_pos": np.zeros(cap, np.int32),    # DC activations (the pixel's word index) in bin order
+        "dc_per_bin": np.zeros(N_BINS, np.int64),
+        "dc_state": np.zeros(2, np.int64),    # head, size
+        "clock": np.array([0, 0, 0], np.int64),  # tick base, current DC bin, 1 once started
     }
 
 
@@ -108,32 +120,54 @@ def _log1p_count(table, c):
     return table[ix(min(c >> LARGE_SHIFT, LOG_CELLS - 1))] + LOG_LARGE
 
 
+@njit(cache=True, nogil=True)
+def _rebase(word, shift):
+    """Move the tick origin `shift` ticks later: every pixel's last tick drops by `shift`, clamped at 0
+    (never), which changes no feature: such a pixel's age was >= FAR_TICKS before and after."""
+    for k in range(len(word)):
+        w = word[k]
+        tf = w & 0xFFFFFFFF
+        tick = max((tf >> 1) - shift, 0)
+        word[k] = (w - tf) | (tick << 1) | (tf & 1)
+
+
 @functools.cache
 def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_live: bool):
     """The kernel for one configuration: `n_hidden` 0 scores with a logistic model (w1[0], b1[0]),
     else with a ReLU layer of `n_hidden` units (w1, b1) and an output layer (w2, b2). The features are
-    scalars (registers), the neighbour loop is unrolled, the FIFO stores each event's block with its
-    pixel (no division on expiry)."""
+    scalars (registers), the neighbour reads unrolled with constant offsets, the FIFO stores each
+    event's block and polarity with its map row (no division on expiry)."""
     L = 2 * RADIUS_PX + 1
     R = RADIUS_PX
 
     @njit(cache=True, nogil=True, fastmath=True)
-    def kernel(t, x, y, p, start, codes, threshold, hot_min, last, hsum, own, block, blog, offs,
-               width_padded, fifo_t, fifo_pos, fifo_pix, fifo_state, width, height, w1, b1, w2, b2,
-               out_score, out_feat, log1p, age_log1p):
-        """Score events `start..` whose code is SIGNAL: BACKGROUND below `threshold` (HOT_PIXEL when the
-        pixel's own 20 ms count is >= `hot_min`). Returns the index reached: len(t) unless the FIFO is
-        full (the caller grows it and calls again from there)."""
+    def kernel(t, x, y, p, start, codes, threshold, hot_min, dc_margin, word, hsum, block, blog, wp,
+               fifo_t, fifo_pos, fifo_state, dc_pos, dc_per_bin, dc_state, clock, width, height,
+               w1, b1, w2, b2, out_score, out_feat, log1p, age_log1p):
+        """Score events `start..` whose code is SIGNAL: BACKGROUND below `threshold`, HOT_PIXEL by either
+        hot-pixel rule (module docstring). Returns the index reached: len(t) unless a FIFO is full (the
+        caller grows both and calls again from there)."""
         cap = len(fifo_t)
         mask = cap - 1
         head = fifo_state[0]
         size = fifo_state[1]
+        dcap = len(dc_pos)
+        dmask = dcap - 1
+        dhead = dc_state[0]
+        dsize = dc_state[1]
+        base = clock[0]
+        b = clock[1]
+        started = clock[2]
+        bin_start = b * BIN_US
+        bin_end = bin_start + BIN_US
+        b8 = b & 0xFF
+        b_slot = b % N_BINS
         bw = (width + 15) // 16
         log_global_scale = math.log(25.0 / (width * height))
         n = len(t)
         i = start
         while i < n:
-            stop = min(n, i + cap - size)
+            stop = min(n, i + cap - size, i + dcap - dsize)  # each event pushes at most one per FIFO
             if stop == i:
                 break
             while i < stop:
@@ -141,47 +175,78 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                     i += 1
                     continue
                 ti = t[ix(i)]
+                if started == 0:
+                    base = (ti >> 4) - FAR_TICKS
+                    started = 1
+                tick = (ti >> 4) - base
+                if tick >= REBASE_TICKS:
+                    _rebase(word, tick - FAR_TICKS)
+                    base += tick - FAR_TICKS
+                    tick = FAR_TICKS
                 oldest = ti - WINDOW_US
                 while size > 0 and fifo_t[ix(head)] <= oldest:
-                    pos = fifo_pos[ix(head)]  # the cell; bit 40 says ON
-                    row_add(hsum, pos & 0xFFFFFFFFFF, -(1 + ((pos >> 40) << 16)), L)
-                    packed = fifo_pix[ix(head)]
-                    own[ix(packed & 0xFFFFFFFF)] -= 1
-                    block[ix(packed >> 32)] -= 1
+                    e = fifo_pos[ix(head)]
+                    pos = e & 0xFFFFFFFF
+                    row_add(hsum, pos, -(1 + (((e >> 32) & 1) << 16)), L)
+                    word[ix(pos + R)] -= OWN_ONE
+                    block[ix(e >> 33)] -= 1
                     head = (head + 1) & mask
                     size -= 1
+                if ti >= bin_end or ti < bin_start:  # a new DC bin: a division, and bins leave the window
+                    nb = ti // BIN_US
+                    for old in range(max(b - N_BINS + 1, nb - 2 * N_BINS + 1), nb - N_BINS + 1):
+                        k_old = old % N_BINS
+                        for _ in range(dc_per_bin[ix(k_old)]):
+                            word[ix(dc_pos[ix(dhead)])] -= DC_ONE
+                            dhead = (dhead + 1) & dmask
+                            dsize -= 1
+                        dc_per_bin[ix(k_old)] = 0
+                    b = nb
+                    b8 = b & 0xFF
+                    b_slot = b % N_BINS
+                    bin_start = b * BIN_US
+                    bin_end = bin_start + BIN_US
                 xi = np.intp(x[ix(i)])
                 yi = np.intp(y[ix(i)])
                 pi = np.intp(p[ix(i)])
-                corner = yi * width_padded + xi
-                packed_sum = column_sum(hsum, corner + R, width_padded, L)
+                corner = yi * wp + xi
+                packed_sum = column_sum(hsum, corner + R, wp, L)
                 n_all = packed_sum & 0xFFFF
                 n1 = packed_sum >> 16  # ON events in the box
                 n0 = n_all - n1
-                pix = yi * width + xi
-                b = (yi >> 4) * bw + (xi >> 4)
-                own_c = own[ix(pix)]
-                centre = corner + R * width_padded + R
+                bk = (yi >> 4) * bw + (xi >> 4)
+                centre = corner + R * wp + R
                 s2 = 0
                 s10 = 0
                 s50 = 0
-                for k in range(8):  # last[q] = (timestamp << 1) | polarity: one read per neighbour
-                    v = last[ix(centre + offs[k])]
-                    age = ti - (v >> 1)
-                    same = (v & 1) == pi
-                    s2 += age < 2_000
-                    s10 += (age < 10_000) & same
-                    s50 += (age < 50_000) & same
-                age_own = ti - (last[ix(centre)] >> 1)
-                f0 = _log1p_count(log1p, n0 + n1)
-                f1 = _log1p_count(log1p, n1 if pi else n0)
-                f2 = _log1p_count(log1p, own_c)
+                dc_nb = 0
+                for q in (centre - wp - 1, centre - wp, centre - wp + 1, centre - 1, centre + 1,
+                          centre + wp - 1, centre + wp, centre + wp + 1):
+                    v = word[ix(q)]
+                    tf = v & 0xFFFFFFFF
+                    age = tick - (tf >> 1)  # >= 0
+                    same = ((tf ^ pi) & 1) ^ 1
+                    # integer arithmetic, not comparisons: numba keeps each bool in its own stack byte
+                    # (measured 2.5x slower for the whole kernel); (a - c) >> 63 is -1 iff a < c
+                    s2 -= (age - 125) >> 63
+                    s10 += ((age - 625) >> 63) & same
+                    s50 += ((age - 3125) >> 63) & same
+                    dc_nb += v >> 56
+                w = word[ix(centre)]
+                own_c = (w >> 32) & 0xFFFF
+                dc_own = w >> 56
+                age_own = tick - ((w & 0xFFFFFFFF) >> 1)
+                f0 = log1p[ix(n_all)]  # < 65536: the 16-bit fields they are kept in
+                f1 = log1p[ix(n1 if pi else n0)]
+                f2 = log1p[ix(own_c)]
                 f3 = _log1p_count(log1p, size) + log_global_scale
-                f4 = _log1p_count(log1p, block[ix(b)]) + blog[ix(b)]
+                f4 = _log1p_count(log1p, block[ix(bk)]) + blog[ix(bk)]
                 f5 = s2 * 0.125
                 f6 = s10 * 0.125
                 f7 = s50 * 0.125
                 f8 = age_log1p[ix(min(age_own >> AGE_SHIFT, AGE_CELLS - 1))]
+                f9 = dc_own * (1.0 / N_BINS)
+                f10 = dc_nb * (1.0 / (8 * N_BINS))
                 if want_features:
                     out_feat[ix(i), 0] = f0
                     out_feat[ix(i), 1] = f1
@@ -192,36 +257,50 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                     out_feat[ix(i), 6] = f6
                     out_feat[ix(i), 7] = f7
                     out_feat[ix(i), 8] = f8
+                    out_feat[ix(i), 9] = f9
+                    out_feat[ix(i), 10] = f10
                 if n_hidden == 0:
                     s = (b1[0] + w1[0, 0] * f0 + w1[0, 1] * f1 + w1[0, 2] * f2 + w1[0, 3] * f3 + w1[0, 4] * f4
-                         + w1[0, 5] * f5 + w1[0, 6] * f6 + w1[0, 7] * f7 + w1[0, 8] * f8)
+                         + w1[0, 5] * f5 + w1[0, 6] * f6 + w1[0, 7] * f7 + w1[0, 8] * f8 + w1[0, 9] * f9
+                         + w1[0, 10] * f10)
                 else:
                     s = b2
                     for j in range(n_hidden):
                         h = (b1[j] + w1[j, 0] * f0 + w1[j, 1] * f1 + w1[j, 2] * f2 + w1[j, 3] * f3
-                             + w1[j, 4] * f4 + w1[j, 5] * f5 + w1[j, 6] * f6 + w1[j, 7] * f7 + w1[j, 8] * f8)
+                             + w1[j, 4] * f4 + w1[j, 5] * f5 + w1[j, 6] * f6 + w1[j, 7] * f7 + w1[j, 8] * f8
+                             + w1[j, 9] * f9 + w1[j, 10] * f10)
                         s += w2[j] * max(h, 0.0)
-                # hot-pixel rule: the pixel fired hot_min times or more in 20 ms, at least half as
-                # often as all its 24 neighbours together (a linear score cannot express it)
-                hot = (own_c >= hot_min) & (3 * own_c > n0 + n1)
+                # the hot-pixel rules (a linear score cannot express them): the pixel fired hot_min times
+                # or more in 20 ms and more than a third of its box's events; or its DC exceeds its
+                # neighbours' mean by more than dc_margin / 512
+                hot = ((own_c >= hot_min) & (3 * own_c > n_all)) | (8 * dc_own - dc_nb > dc_margin)
                 s = HOT_SCORE if hot else s
                 if want_score:
                     out_score[ix(i)] = s
-                # branchless: 0 kept, else 1 (background) or 2 (the hot-pixel rule)
+                # branchless: 0 kept, else 1 (background) or 2 (a hot-pixel rule)
                 codes[ix(i)] = (s < threshold) * (1 + hot)
-                pos = corner + R * width_padded
+                pos = corner + R * wp
                 row_add(hsum, pos, 1 + (pi << 16), L)
-                own[ix(pix)] += 1
-                block[ix(b)] += 1
+                block[ix(bk)] += 1
                 slot = (head + size) & mask
                 fifo_t[ix(slot)] = ti
-                fifo_pos[ix(slot)] = pos | (pi << 40)
-                fifo_pix[ix(slot)] = (b << 32) | pix
+                fifo_pos[ix(slot)] = pos | (pi << 32) | (bk << 33)
                 size += 1
-                last[ix(centre)] = (ti << 1) | pi
+                # the pixel's first event in bin b activates it (its last active bin equals b modulo 256
+                # either because it is b or because it has been idle >= 256 > N_BINS bins: count 0)
+                new = (((w >> 48) & 0xFF) != b8) | (dc_own == 0)
+                dc_pos[ix((dhead + dsize) & dmask)] = np.int32(centre)
+                dsize += new
+                dc_per_bin[ix(b_slot)] += new
+                word[ix(centre)] = ((dc_own + new) << 56) | (b8 << 48) | ((own_c + 1) << 32) | (tick << 1) | pi
                 i += 1
         fifo_state[0] = head
         fifo_state[1] = size
+        dc_state[0] = dhead
+        dc_state[1] = dsize
+        clock[0] = base
+        clock[1] = b
+        clock[2] = started
         return i
 
     return kernel
@@ -237,31 +316,45 @@ def reference_features(t, x, y, p, width: int, height: int) -> np.ndarray:
     out = np.zeros((n, N_FEATURES))
     last_t: dict[tuple[int, int], int] = {}
     last_p: dict[tuple[int, int], int] = {}
+    bins: dict[tuple[int, int], set] = {}
     bw = -(-width // BLOCK_PX)
     blog = block_log_scale(width, height)
     for i in range(n):
         ti, xi, yi, pi = int(t[i]), int(x[i]), int(y[i]), int(p[i])
+        tick, b = ti // TICK_US, ti // BIN_US
         win = [j for j in range(i) if int(t[j]) > ti - WINDOW_US]
         box = [j for j in win if abs(int(x[j]) - xi) <= 2 and abs(int(y[j]) - yi) <= 2]
         same = [j for j in box if int(p[j]) == pi]
         own = [j for j in box if int(x[j]) == xi and int(y[j]) == yi]
-        b = (yi // 16) * bw + xi // 16
-        blk = [j for j in win if (int(y[j]) // 16) * bw + int(x[j]) // 16 == b]
+        bk = (yi // 16) * bw + xi // 16
+        blk = [j for j in win if (int(y[j]) // 16) * bw + int(x[j]) // 16 == bk]
+
+        def dc(q):  # active DC bins of pixel q among b - N_BINS + 1 .. b
+            return sum(b - N_BINS < c <= b for c in bins.get(q, ()))
+
         s = np.zeros(3)
+        dc_nb = 0
         for dy in range(-1, 2):
             for dx in range(-1, 2):
-                if (dy, dx) == (0, 0) or (xi + dx, yi + dy) not in last_t:
+                q = (xi + dx, yi + dy)
+                if (dy, dx) == (0, 0):
                     continue
-                age = ti - last_t[(xi + dx, yi + dy)]
-                sm = last_p[(xi + dx, yi + dy)] == pi
-                s[0] += age < 2_000
-                s[1] += age < 10_000 and sm
-                s[2] += age < 50_000 and sm
-        age_own = ti - last_t.get((xi, yi), NEVER_US)
+                dc_nb += dc(q)
+                if q not in last_t:
+                    continue
+                age = tick - last_t[q] // TICK_US
+                sm = last_p[q] == pi
+                s[0] += age < SUPPORT_TICKS[0]
+                s[1] += age < SUPPORT_TICKS[1] and sm
+                s[2] += age < SUPPORT_TICKS[2] and sm
+        age_own = tick - last_t[(xi, yi)] // TICK_US if (xi, yi) in last_t else FAR_TICKS
+        cell = min(age_own >> AGE_SHIFT, AGE_CELLS - 1)
         out[i] = [_ref_log1p(len(box)), _ref_log1p(len(same)), _ref_log1p(len(own)),
-                  _ref_log1p(len(win)) + math.log(25.0 / (width * height)), _ref_log1p(len(blk)) + blog[b],
+                  _ref_log1p(len(win)) + math.log(25.0 / (width * height)), _ref_log1p(len(blk)) + blog[bk],
                   s[0] / 8, s[1] / 8, s[2] / 8,
-                  math.log1p(min(age_own >> AGE_SHIFT, AGE_CELLS - 1) * (1 << AGE_SHIFT) / 1000.0)]
+                  math.log1p(cell * (TICK_US << AGE_SHIFT) / 1000.0),
+                  dc((xi, yi)) / N_BINS, dc_nb / (8 * N_BINS)]
         last_t[(xi, yi)] = ti
         last_p[(xi, yi)] = pi
+        bins.setdefault((xi, yi), set()).add(b)
     return out

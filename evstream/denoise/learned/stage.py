@@ -4,11 +4,13 @@
 recordings, docs/learned.md); `model = "PATH.npz"` takes one made by `evstream train`. `keep` picks the
 operating point: the fraction of the signal the model's calibration expects it to keep (default: the
 one it was trained for). Events scored below the threshold are BACKGROUND; an event whose pixel fired
-`hot_min` times or more in the last 20 ms, more than a third of its 5×5 box's events, is HOT_PIXEL.
+`hot_min` times or more in the last 20 ms, more than a third of its 5×5 box's events, or whose pixel's
+DC component exceeds its 8 neighbours' mean by more than `dc_lam` (1: never), is HOT_PIXEL.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +18,7 @@ import numpy as np
 from ...events import EventChunk, NoiseClass
 from ...pipeline import register
 from ..base import InPlaceClassifier, grow_fifo
-from .features import AGE_LOG1P_MS, HISTORY_US, LOG1P, N_FEATURES, feature_kernel, new_state
+from .features import AGE_LOG1P_MS, HISTORY_US, LOG1P, N_BINS, N_FEATURES, feature_kernel, new_state
 from .model import Model, load
 
 
@@ -29,6 +31,7 @@ class LearnedFilter(InPlaceClassifier):
     model: str | Model | None = None
     keep: float | None = None
     hot_min: int = 4
+    dc_lam: float = 0.2
     noise_class = NoiseClass.BACKGROUND
     _state: dict | None = field(default=None, init=False, repr=False)
 
@@ -38,6 +41,9 @@ class LearnedFilter(InPlaceClassifier):
             raise ValueError(f"learned: keep must be a fraction in (0, 1], got {self.keep!r}")
         if not isinstance(self.hot_min, int) or self.hot_min < 1:
             raise ValueError(f"learned: hot_min must be a positive integer, got {self.hot_min!r}")
+        if not (isinstance(self.dc_lam, (int, float)) and 0 <= self.dc_lam <= 1):
+            raise ValueError(f"learned: dc_lam must be in [0, 1] (1: no DC rule), got {self.dc_lam!r}")
+        self._dc_margin = math.floor(self.dc_lam * 8 * N_BINS)
         self._model = m
         self._weights = m.folded()
         self._threshold = m.threshold(self.keep)
@@ -55,7 +61,7 @@ class LearnedFilter(InPlaceClassifier):
         model = self.model
         if isinstance(model, Model):
             model = model.meta.get("name", "<in memory>")
-        return {"model": model, "keep": self.keep, "hot_min": self.hot_min}
+        return {"model": model, "keep": self.keep, "hot_min": self.hot_min, "dc_lam": self.dc_lam}
 
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool,
              features: np.ndarray | None = None) -> np.ndarray:
@@ -71,12 +77,16 @@ class LearnedFilter(InPlaceClassifier):
         i = 0
         while True:
             i = kernel(chunk.t, chunk.x, chunk.y, chunk.p, i, codes, self._threshold, self.hot_min,
-                       s["last"], s["hsum"], s["own"], s["block"], s["block_log_scale"],
-                       s["offsets"], s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_pix"],
-                       s["fifo_state"], g.width, g.height, w1, b1, w2, b2, score, feats, LOG1P, AGE_LOG1P_MS)
+                       self._dc_margin, s["word"], s["hsum"], s["block"], s["block_log_scale"],
+                       s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["dc_pos"],
+                       s["dc_per_bin"], s["dc_state"], s["clock"], g.width, g.height, w1, b1, w2, b2,
+                       score, feats, LOG1P, AGE_LOG1P_MS)
             if i >= n:
                 return score
-            grow_fifo(s, ("fifo_t", "fifo_pos", "fifo_pix"))
+            if s["fifo_state"][1] == len(s["fifo_t"]):
+                grow_fifo(s, ("fifo_t", "fifo_pos"))
+            if s["dc_state"][1] == len(s["dc_pos"]):
+                grow_fifo(s, ("dc_pos",), "dc_state")
 
     def features(self, chunk: EventChunk) -> np.ndarray:
         """The feature matrix of an unclassified chunk (advances the state like `classify`)."""
