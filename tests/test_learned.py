@@ -192,8 +192,13 @@ def test_train_command_writes_a_model_the_pipeline_uses(tmp_path):
     from evstream.cli import main
 
     out = tmp_path / "m.npz"
-    assert main(["train", "recordings/bar.npz", "--out", str(out), "--events-per-stream", "3000"]) == 0
+    assert main(["train", "recordings/bar.npz", "--out", str(out), "--events-per-stream", "3000",
+                 "--without", "dc_own,dc_nb8"]) == 0
     m = load(out)
+    left_out = [FEATURES.index("dc_own"), FEATURES.index("dc_nb8")]
+    assert (m.w1[0, left_out] == 0).all() and (m.w1[0] != 0).sum() == NF - 2
+    assert m.meta["features_left_out"] == ["dc_own", "dc_nb8"]
+    assert main(["train", "recordings/bar.npz", "--out", str(tmp_path / "x.npz"), "--without", "nope"]) == 2
     assert m.meta["trained_on"][0]["file"] == "bar.npz" and len(m.meta["trained_on"][0]["sha256"]) == 64
     assert m.meta["noise_conditions"] == ["50%", "100%", "200%", "1Hz", "3Hz", "5Hz"]
     arch = tmp_path / "a.mcap"

@@ -31,6 +31,11 @@ def cmd_train(args) -> int:
         raise UsageError(f"--hidden must be in 1..64, got {args.hidden}")
     if args.events_per_stream < 1000:
         raise UsageError(f"--events-per-stream must be >= 1000, got {args.events_per_stream}")
+    from ..denoise.learned import FEATURES
+
+    unknown = [f for f in args.without if f not in FEATURES]
+    if unknown:
+        raise UsageError(f"--without: unknown feature(s) {', '.join(unknown)}; the features: {', '.join(FEATURES)}")
     out = Path(args.out)
     for rec in args.recordings:
         not_the_input(rec, out, "--out ")
@@ -45,7 +50,8 @@ def cmd_train(args) -> int:
     say = (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr)) if sys.stderr.isatty() else None
     t0 = time.perf_counter()
     model = train.train(recordings, kind=args.kind, hidden=args.hidden, keep=args.keep, seed=args.seed,
-                        per_stream=args.events_per_stream, sources=sources, thin=args.thin, progress=say)
+                        per_stream=args.events_per_stream, sources=sources, thin=args.thin,
+                        without=args.without, progress=say)
     if say:
         print(file=sys.stderr)
     model.save(out)
@@ -73,5 +79,7 @@ def add_parser(sub) -> None:
     p.add_argument("--thin", type=_fractions, default=(), metavar="F,F...",
                    help="also train on each recording's signal thinned at random to these fractions "
                         "(e.g. 0.3,0.1,0.03: sparser scenes; docs/learned.md)")
+    p.add_argument("--without", type=lambda t: [w for w in t.split(",") if w], default=[], metavar="F,F...",
+                   help="features the score leaves out (docs/learned.md: the shipped model leaves out the DC ones)")
     p.add_argument("--min-duration-s", type=float, default=0.0, help="skip shorter recordings")
     p.set_defaults(func=cmd_train)

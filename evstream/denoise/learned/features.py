@@ -329,7 +329,7 @@ def reference_features(t, x, y, p, width: int, height: int) -> np.ndarray:
         bk = (yi // 16) * bw + xi // 16
         blk = [j for j in win if (int(y[j]) // 16) * bw + int(x[j]) // 16 == bk]
 
-        def dc(q):  # active DC bins of pixel q among b - N_BINS + 1 .. b
+        def dc(q, b=b):  # active DC bins of pixel q among b - N_BINS + 1 .. b
             return sum(b - N_BINS < c <= b for c in bins.get(q, ()))
 
         s = np.zeros(3)

@@ -269,13 +269,19 @@ def sha256(path) -> str:
 def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: int = 16, keep: float = 0.85,
           seed: int = 0, per_stream: int = 20_000, sources: dict[str, str] | None = None,
           conditions: Iterable[Condition] = TRAIN_CONDITIONS, thin: Iterable[float] = (),
-          progress: Callable[[str], None] | None = None) -> Model:
+          without: Iterable[str] = (), progress: Callable[[str], None] | None = None) -> Model:
     """Inject noise into `recordings` (and their signal thinned to `thin`, see `samples`), compute
-    features, fit and calibrate; provenance in `meta`."""
+    features, fit and calibrate; provenance in `meta`. `without`: features the score leaves out
+    (weight 0; the kernel still computes them, e.g. for the hot-pixel rules)."""
     conditions = list(conditions)
     thin = [float(f) for f in thin]
+    without = list(without)
+    unknown = [f for f in without if f not in FEATURES]
+    if unknown:
+        raise ValueError(f"unknown feature(s) {', '.join(unknown)}; the features are {', '.join(FEATURES)}")
     S = samples(recordings, conditions, seeds=(SEED_BASE + seed,), per_stream=per_stream, rng_seed=seed,
                 progress=progress, thin=thin)
+    S.X[:, [FEATURES.index(f) for f in without]] = 0.0  # constant: standardised to 0, Newton keeps w = 0
     if progress:
         progress(f"fitting {kind} on {len(S.y):,} events")
     model = fit(S, kind, hidden, keep, seed)
@@ -287,6 +293,7 @@ def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: 
         "noise_conditions": [c.name for c in conditions],
         "noise_seed": SEED_BASE + seed,
         **({"signal_thinned_to": thin} if thin else {}),
+        **({"features_left_out": without} if without else {}),
         "events_per_stream": per_stream,
         "training_events": int(len(S.y)),
         "signal_share": round(float(S.y.mean()), 4),
