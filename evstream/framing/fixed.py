@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from ..events import EventChunk, Frame
+from ..nowrap import ix
 from ..pipeline import register
 from .base import COUNT_MAX, FramerBase, check_positive_int, watermark
 
@@ -31,14 +32,16 @@ def accumulate(x, y, p, cls, use_cls, a, b, counts, width, hw):
     plain Python (tests/mutation.py), where a uint8 times an int stays uint8 under NumPy 2."""
     if use_cls:
         added = 0
-        for i in range(a, b):
+        for k in range(a, b):
+            i = ix(k)  # unsigned: no negative-index test on each access (~1.5x faster)
             if cls[i] == 0:
                 f = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
                 if counts[f] != COUNT_MAX:
                     counts[f] += 1
                 added += 1
         return added
-    for i in range(a, b):
+    for k in range(a, b):
+        i = ix(k)
         f = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
         if counts[f] != COUNT_MAX:
             counts[f] += 1
@@ -55,13 +58,14 @@ def fn_run(t, x, y, p, cls, use_cls, i, counts, width, hw, n_have, n_target, fir
     status): FN_FULL (i is past the n-th event), FN_TIMEOUT (event i is past the deadline) or FN_DONE."""
     n = len(t)
     while i < n:
-        ti = t[i]
+        j = ix(i)  # unsigned, as in `accumulate`
+        ti = t[j]
         if n_have > 0 and ti >= first_t + max_window_us:
             return i, n_have, first_t, last_t, FN_TIMEOUT
-        if not use_cls or cls[i] == 0:
+        if not use_cls or cls[j] == 0:
             if n_have == 0:
                 first_t = ti
-            f = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
+            f = np.intp(p[j]) * hw + np.intp(y[j]) * width + x[j]
             if counts[f] != COUNT_MAX:
                 counts[f] += 1
             n_have += 1

@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from ..events import EventChunk, Frame
+from ..nowrap import ix
 from ..pipeline import register
 from .base import COUNT_MAX, FramerBase, check_nonnegative_int, check_positive_int, watermark
 from .fixed import accumulate
@@ -31,8 +32,9 @@ INITIAL_BUFFER_EVENTS = 1 << 14
 @njit(cache=True, nogil=True)
 def flat_index(x, y, p, a, b, width, hw, out, at):
     """out[at + j] = the flat count index p·H·W + y·W + x of event a + j, for the events [a, b)."""
-    for i in range(a, b):
-        out[at + i - a] = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
+    for k in range(a, b):
+        i = ix(k)  # unsigned: no negative-index test on each access
+        out[ix(at + k - a)] = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
 
 
 @njit(cache=True, nogil=True)
@@ -47,7 +49,7 @@ def flat_index_of(x, y, p, idx, width, hw, out, at):
 def add_flat(counts, flat, a, b):
     """counts[flat[j]] += 1 for j in [a, b), saturating."""
     for j in range(a, b):
-        f = flat[j]
+        f = flat[ix(j)]
         if counts[f] != COUNT_MAX:
             counts[f] += 1
 

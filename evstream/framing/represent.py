@@ -46,6 +46,7 @@ WINDOW_PARAMS = ("window_us", "stride_us", "n_events", "max_window_us", "n_base"
                  "overlap_max_us", "overlap_init_us", "max_empty_frames")
 NEVER_US = -(1 << 62)  # "no event yet": exp(−(t − NEVER_US)/τ) is exactly 0 for any τ we accept
 MAX_TAU_US = 1 << 40
+REBASE_US = 1 << 30  # time surface: int32 times move their base once an event is this far past it
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,47 +60,84 @@ class Representation(Frame):
 
 
 # -- kernels --------------------------------------------------------------------------------------
+# Each loops over range(len(...)) of slices given by the caller: over range(a, b) numba cannot tell an
+# index is not negative, and its wrap-around test on every array access costs ~30 % here (and stops
+# the vectorisation of `surface_exponent`).
+@njit(nogil=True)
+def _voxel_add(out, pix, on, dt, scale, last, hw):
+    """Add polarity ±1 (`on`) of one event dt µs after the window's start to the flat voxel grid `out`
+    (bins·H·W), shared bilinearly between the two bins around t* = dt·scale (<= bins − 1: only the last
+    bin has no bin after it)."""
+    v = np.float32(2 * on - 1)
+    tn = dt * scale
+    lo = np.intp(tn)
+    w_hi = np.float32(tn - lo)
+    k = lo * hw + pix
+    out[k] += v - v * w_hi
+    if lo < last:
+        out[k + hw] += v * w_hi
+
+
 @njit(cache=True, nogil=True)
-def voxel_kernel(buf_t, buf_f, a, b, t_start, t_end, bins, hw, out):
-    """Add events [a, b) of the buffer to the flat voxel grid `out` (bins·H·W): polarity ±1 shared
-    bilinearly between the two bins around t* = (bins − 1)(t − t_start) / (t_end − 1 − t_start).
-    Events lie in [t_start, t_end), so t* <= bins − 1 and only the last bin has no bin after it.
-    Polarity and pixel come from the flat index without a branch (they are random per event)."""
+def voxel_kernel(buf_t, buf_f, t_start, t_end, bins, hw, out):
+    """Add buffered events (time, flat index p·H·W + y·W + x), all in [t_start, t_end), to the flat voxel
+    grid `out`: t* = (bins − 1)(t − t_start) / (t_end − 1 − t_start). Polarity and pixel come from the
+    flat index without a branch (they are random per event)."""
     scale = (bins - 1) / max(1, t_end - 1 - t_start)
-    last = bins - 1
-    for j in range(a, b):
+    for j in range(len(buf_t)):
         f = np.intp(buf_f[j])
-        on = f >= hw
-        pix = f - hw * on
-        v = np.float32(2 * on - 1)
-        tn = (buf_t[j] - t_start) * scale
-        lo = np.intp(tn)
-        w_hi = np.float32(tn - lo)
-        k = lo * hw + pix
-        out[k] += v - v * w_hi
-        if lo < last:
-            out[k + hw] += v * w_hi
+        on = np.intp(f >= hw)
+        _voxel_add(out, f - hw * on, on, buf_t[j] - t_start, scale, bins - 1, hw)
 
 
 @njit(cache=True, nogil=True)
-def timestamp_kernel(buf_t, buf_f, a, b, t_start, t_end, out):
-    """out[f] = (t − t_start + 1) / (t_end − t_start) of the newest event [a, b) at each flat index f
+def voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, bins, width, hw, out):
+    """`voxel_kernel` straight from a chunk's events (the counted ones: `cls` 0 when `use_cls`), for
+    windows whose span is known when they open (fixed time windows): the same arithmetic per event."""
+    scale = (bins - 1) / max(1, t_end - 1 - t_start)
+    for j in range(len(t)):
+        if use_cls and cls[j] != 0:
+            continue
+        _voxel_add(out, np.intp(y[j]) * width + np.intp(x[j]), np.intp(p[j]), t[j] - t_start, scale, bins - 1, hw)
+
+
+@njit(cache=True, nogil=True)
+def timestamp_kernel(buf_t, buf_f, t_start, t_end, out):
+    """out[f] = (t − t_start + 1) / (t_end − t_start) of the newest buffered event at each flat index f
     (events are in time order, so the last write wins)."""
     inv = 1.0 / (t_end - t_start)
-    for j in range(a, b):
+    for j in range(len(buf_t)):
         out[buf_f[j]] = (buf_t[j] - t_start + 1) * inv
 
 
 @njit(cache=True, nogil=True)
-def last_time_of(t, x, y, p, cls, use_cls, a, b, width, hw, last_t):
-    """last_t[p·H·W + y·W + x] = t of the newest counted event [a, b) of a chunk at each pixel."""
-    if use_cls:
-        for i in range(a, b):
-            if cls[i] == 0:
-                last_t[p[i] * hw + y[i] * width + x[i]] = t[i]
-        return
-    for i in range(a, b):
-        last_t[p[i] * hw + y[i] * width + x[i]] = t[i]
+def timestamp_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, width, hw, out):
+    """`timestamp_kernel` straight from a chunk's (counted) events, for fixed time windows."""
+    inv = 1.0 / (t_end - t_start)
+    for j in range(len(t)):
+        if use_cls and cls[j] != 0:
+            continue
+        out[np.intp(p[j]) * hw + np.intp(y[j]) * width + np.intp(x[j])] = (t[j] - t_start + 1) * inv
+
+
+@njit(cache=True, nogil=True)
+def last_time_of(t, x, y, p, cls, use_cls, width, hw, base, last_t):
+    """last_t[p·H·W + y·W + x] = t − base of the newest (counted) event of a chunk at each pixel; `last_t`
+    int32 or int64 (a time too old for int32 is stored as its smallest value, "never")."""
+    floor = np.iinfo(last_t.dtype).min
+    for i in range(len(t)):
+        if use_cls and cls[i] != 0:
+            continue
+        last_t[np.intp(p[i]) * hw + np.intp(y[i]) * width + np.intp(x[i])] = max(t[i] - base, floor)
+
+
+@njit(cache=True, nogil=True)
+def rebase(last_t, delta):
+    """last_t −= delta (>= 0: the base only moves forward), those that fall below the dtype's range
+    becoming its smallest value ("never")."""
+    floor = np.iinfo(last_t.dtype).min
+    for f in range(len(last_t)):
+        last_t[f] = max(last_t[f] - delta, floor)
 
 
 EXP_FLOOR = -110.0  # float32 exp underflows to 0 below about −103.97
@@ -108,14 +146,14 @@ EXP_FLOOR = -110.0  # float32 exp underflows to 0 below about −103.97
 @njit(cache=True, nogil=True)
 def surface_exponent(last_t, t_now, inv_tau, out):
     """out[f] = max(−(t_now − last_t[f]) / τ, EXP_FLOOR) in float32 (the µs difference taken exactly in
-    int64 first). `surface` then takes numpy's vectorised float32 exp: ~30x faster than exp in this
+    int64 first). `surface` then takes numpy's vectorised float32 exp: ~10x faster than exp in this
     loop, which numba does not vectorise."""
     for f in range(len(last_t)):
         out[f] = max(np.float32((last_t[f] - t_now) * inv_tau), np.float32(EXP_FLOOR))
 
 
 def surface(last_t: np.ndarray, t_now: int, tau_us: float, out: np.ndarray) -> None:
-    """out = exp(−(t_now − last_t) / τ) as float32; 0 where last_t is NEVER_US."""
+    """out = exp(−(t_now − last_t) / τ) as float32 (t_now on last_t's base); 0 where last_t is "never"."""
     surface_exponent(last_t, t_now, 1.0 / tau_us, out)
     np.exp(out, out=out)
 
@@ -227,6 +265,11 @@ class RepresentationFramer(FramerBase):
         self.geometry = None
         self._buf: _EventBuffer | None = None
         self._assigned = 0  # fn: absolute index of the first buffered event no emitted window holds
+        # Fixed time windows lie on a grid known from the first event: a subclass with `_add` adds each
+        # event to its window's array as it arrives (no buffer, no second pass). Arrays by window start.
+        self._direct = self.window == "fw" and type(self)._add is not RepresentationFramer._add
+        self._open: dict[int, np.ndarray] = {}
+        self._grid_us: int | None = None  # start of the first window
 
     @property
     def channels(self) -> tuple:
@@ -241,10 +284,37 @@ class RepresentationFramer(FramerBase):
             self._geometry(chunk)
             if self.needs_events:
                 cls, use_cls = self._cls(chunk)
-                self._buf.append(chunk, cls, use_cls, self._width, self._hw)
+                if self._direct:
+                    self._add_to_windows(chunk, cls, use_cls)
+                else:
+                    self._buf.append(chunk, cls, use_cls, self._width, self._hw)
         out = self._represent(self.inner.push(chunk))
         self._forget()
         return out
+
+    def _add_to_windows(self, chunk: EventChunk, cls, use_cls: bool) -> None:
+        """Fixed time windows: add the chunk's events to the arrays of the windows they fall in."""
+        n = len(chunk)
+        if not n:
+            return
+        t = chunk.t
+        if self._grid_us is None:
+            self._grid_us = int(t[0])  # as the fw framer: windows start at the stream's first event
+        w = self.inner.window_us
+        i = 0
+        while i < n:
+            start = self._grid_us + (int(t[i]) - self._grid_us) // w * w
+            j = i + int(np.searchsorted(t[i:], start + w, side="left"))
+            data = self._open.get(start)
+            if data is None:
+                data = self._open[start] = self._new_data(len(self.channels))
+            self._add(chunk.t[i:j], chunk.x[i:j], chunk.y[i:j], chunk.p[i:j], cls[i:j], use_cls, start, start + w,
+                      data.reshape(-1))
+            i = j
+
+    def _add(self, t, x, y, p, cls, use_cls: bool, t_start: int, t_end: int, out: np.ndarray) -> None:
+        """Add events (slices of a chunk's fields, all in the window [t_start, t_end)) to its flat array
+        `out`: the counted ones, `cls` 0, when `use_cls`."""
 
     def finish(self) -> list[Representation]:
         out = self._represent(self.inner.finish())
@@ -255,7 +325,7 @@ class RepresentationFramer(FramerBase):
         if self.geometry is None:
             super()._reset()
             super()._geometry(chunk)
-            if self.needs_events:
+            if self.needs_events and not self._direct:
                 self._buf = _EventBuffer(np.uint32 if 2 * self._hw < 2**32 else np.int64)
             self._on_geometry()
 
@@ -265,6 +335,13 @@ class RepresentationFramer(FramerBase):
     def _represent(self, frames: list[Frame]) -> list[Representation]:
         out = []
         for fr in frames:
+            if self._direct:
+                data = self._open.pop(fr.t_start, None)
+                if data is None:  # no event in this window
+                    data = self._new_data(len(self.channels))
+                out.append(Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind,
+                                          self.channels, data))
+                continue
             a = b = 0
             if self.needs_events:
                 a, b = self._events_of(fr)
@@ -285,7 +362,13 @@ class RepresentationFramer(FramerBase):
         return a, buf.index_of_time(fr.t_end, a)
 
     def _forget(self) -> None:
-        """Drop the buffered events no open or future window can hold."""
+        """Drop the buffered events no open or future window can hold (fixed time windows: the arrays of
+        windows the framer has passed without emitting them, which held no counted event)."""
+        if self._direct:
+            start = self.inner.start
+            for s in [s for s in self._open if start is None or s < start]:
+                del self._open[s]
+            return
         buf = self._buf
         if buf is None:
             return
@@ -357,10 +440,13 @@ class TimestampImage(RepresentationFramer):
     def channels_of(self) -> tuple:
         return ("off", "on")
 
+    def _add(self, t, x, y, p, cls, use_cls, t_start, t_end, out):
+        timestamp_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, self._width, self._hw, out)
+
     def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
         out = self._new_data(2)
         la, lb = self._local(a, b)
-        timestamp_kernel(self._buf.t, self._buf.f, la, lb, fr.t_start, fr.t_end, out.reshape(-1))
+        timestamp_kernel(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, out.reshape(-1))
         return out
 
 
@@ -379,10 +465,14 @@ class VoxelGrid(RepresentationFramer):
     def channels_of(self) -> tuple:
         return tuple(f"bin{b}" for b in range(self.bins))
 
+    def _add(self, t, x, y, p, cls, use_cls, t_start, t_end, out):
+        voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, self.bins, self._width, self._hw, out)
+
     def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
         out = self._new_data(self.bins)
         la, lb = self._local(a, b)
-        voxel_kernel(self._buf.t, self._buf.f, la, lb, fr.t_start, fr.t_end, self.bins, self._hw, out.reshape(-1))
+        voxel_kernel(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, self.bins, self._hw,
+                     out.reshape(-1))
         return out
 
 
@@ -418,7 +508,24 @@ class TimeSurface(RepresentationFramer):
         self._emitted = 0  # fn: counted events in the windows emitted so far
 
     def _on_geometry(self) -> None:
-        self._last_t = np.full(2 * self._hw, NEVER_US, np.int64)
+        # int32 times (relative to `_base`) halve the memory each event and each window touch. A pixel
+        # whose time no longer fits at a rebase is at least 2^31 µs >= 128 τ old: its surface is
+        # exp(<= −128) = 0 in float32 already, so "never" is exact. Longer τ keep absolute int64 times.
+        if self.tau_us * 128 <= 1 << 31:
+            self._last_t = np.full(2 * self._hw, np.iinfo(np.int32).min, np.int32)
+        else:
+            self._last_t = np.full(2 * self._hw, NEVER_US, np.int64)
+        self._base = 0
+
+    def _apply(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int) -> None:
+        """Bring the newest times up to date with the chunk's events [a, b)."""
+        last = self._last_t
+        if last.dtype == np.int32 and int(chunk.t[b - 1]) - self._base >= REBASE_US:
+            new_base = int(chunk.t[b - 1])  # events up to 2^31 µs older still fit; older ones become "never"
+            rebase(last, new_base - self._base)
+            self._base = new_base
+        last_time_of(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls, self._width,
+                     self._hw, self._base, last)
 
     def push(self, chunk: EventChunk) -> list[Representation]:
         if len(chunk) or self.geometry is not None:
@@ -449,17 +556,18 @@ class TimeSurface(RepresentationFramer):
                 else:
                     j = i + int(np.searchsorted(chunk.t[i:], fr.t_end, side="left"))
                 if j > i:
-                    last_time_of(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, j, self._width, self._hw,
-                                 self._last_t)
+                    self._apply(chunk, cls, use_cls, i, j)
                     i = j
-            data = self._new_data(2)
-            if self._last_t is not None:
-                surface(self._last_t, fr.t_end, self.tau_us, data.reshape(-1))
+            if self._last_t is None:
+                data = self._new_data(2)
+            else:
+                g = self.geometry
+                data = np.empty((2, g.height, g.width), np.float32)  # every pixel is written
+                surface(self._last_t, fr.t_end - self._base, self.tau_us, data.reshape(-1))
             out.append(Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind, self.channels, data))
         if n:
             if i < n:
-                last_time_of(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, n, self._width, self._hw,
-                             self._last_t)
+                self._apply(chunk, cls, use_cls, i, n)
             self._counted += n if not use_cls else int(np.count_nonzero(cls == 0))
         return out
 
