@@ -161,6 +161,7 @@ class FileSource:
         self.counters: dict = {}
         self.dropped = 0
         self.reordered = 0
+        self.first_row = 0  # column readers: the row a time range starts at (`seek_rows`)
 
     # -- to implement ----------------------------------------------------------------------------
     def _blocks(self) -> Iterator[Block]:
@@ -169,16 +170,41 @@ class FileSource:
     # -- shared ----------------------------------------------------------------------------------
     def _column_blocks(self, cols: dict, n_events: int, time_unit: str,
                        rows: tuple[int, int] | None = None) -> Iterator[Block]:
-        """Blocks of a recording already held as columns `t`, `x`, `y`, `p` (npy/npz, MATLAB). `rows`
-        = (byte of event 0, bytes per event) when the file holds one event per fixed-size row: each
-        block then carries its bytes, so an error names its event's byte."""
+        """Blocks of a recording already held as columns `t`, `x`, `y`, `p` (npy/npz, MATLAB), from the
+        row `set_time_range` found on. `rows` = (byte of event 0, bytes per event) when the file holds
+        one event per fixed-size row: each block then carries its bytes, so an error names its event's byte."""
         step = max(1, self.block_bytes // 16)
-        for a in range(0, n_events, step):
+        for a in range(self.first_row, n_events, step):
             b = min(a + step, n_events)
             self.fraction_read = b / n_events
             where = (rows[0] + a * rows[1], rows[0] + b * rows[1], rows[1]) if rows else ()
             yield to_events(self, cols["t"][a:b], cols["x"][a:b], cols["y"][a:b], cols["p"][a:b], time_unit,
                             *where)
+
+    def seek_rows(self, t: np.ndarray, time_unit: str, start_us: int | None) -> bool:
+        """Column readers: start at the first row whose time is >= `start_us`, found by bisection on the
+        time column `t` (in `time_unit`, read where it lies: a memory-mapped .npy touches a few pages).
+        Only when every earlier row is before `start_us` (the largest of them checked: one vectorised
+        pass, no decoding), so the rows skipped are exactly those a time range drops; else False, and
+        the recording is read from its start."""
+        self.first_row = 0
+        if start_us is None or not len(t):
+            return False
+        scale = TIME_UNITS_US[time_unit]
+        floating = np.issubdtype(t.dtype, np.floating) or time_unit != "us"
+
+        def us(v) -> float:  # as `to_events` converts a time (monotone in v)
+            return float(np.rint(np.float64(v) * scale)) if floating else int(v)
+
+        k = int(np.searchsorted(t, start_us / scale if floating else start_us, side="left"))
+        while k > 0 and us(t[k - 1]) >= start_us:
+            k -= 1
+        while k < len(t) and us(t[k]) < start_us:
+            k += 1
+        if k and not us(np.max(t[:k])) < start_us:  # not in time order: a row before k is in the range
+            return False
+        self.first_row = k
+        return True
 
     def set_geometry(self, g: Geometry | None, source: str) -> None:
         """Use `g` (from the header, or assumed) unless the user gave one; a claimed size beyond any event

@@ -168,6 +168,10 @@ class MatSource(FileSource):
         self.columns = columns
         return {k: np.ascontiguousarray(rows[:, i]) for i, k in enumerate(columns)}, name
 
+    def set_time_range(self, start_us: int | None, end_us: int | None) -> bool:
+        """Start at `start_us` by bisection on the time column (held in memory)."""
+        return self.seek_rows(self._cols["t"], self.time_unit, start_us)
+
     def _blocks(self) -> Iterator[Block]:
         return self._column_blocks(self._cols, self.n_events, self.time_unit)
 

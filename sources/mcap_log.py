@@ -211,6 +211,15 @@ class McapLogSource:
                              f"{msg.log_time} ns): {e}") from None
 
     # -- reading ----------------------------------------------------------------------------------------------
+    def set_time_range(self, start_us: int | None, end_us: int | None) -> bool:
+        """Skip the packets before `start_us` undecoded where the file says where their events lie: evstream
+        archives place each packet by its time base (its first event) in one cell of a `packet_us` grid,
+        so a packet whose cell ends at or before `start_us` holds nothing in the range. Other files' EVT3
+        packets are one stateful stream (each needs the ones before it): read from the start, as are
+        the records themselves (the file is read front to back, so a cut file still replays)."""
+        self._seek_us = start_us
+        return start_us is not None and self.archive
+
     def info(self) -> dict:
         return {"format": self.format, "path": self.path, "meta": self.meta, "archive": self.archive,
                 "truncated": self.truncated, "recovered_messages": self.recovered_messages}
@@ -232,6 +241,7 @@ class McapLogSource:
         check = Validator(self.geometry, self.path, self.timestamps)
         self.recovered_messages = self.recovered_events = 0
         n_msg = 0
+        seek = getattr(self, "_seek_us", None)
         for rec in _records(self.path, scan):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
@@ -247,6 +257,10 @@ class McapLogSource:
                 if rec.channel_id not in selected:
                     continue
                 packet = self._decode(rec, n_msg - 1)
+                cell_us = packet_us[rec.channel_id]
+                if (seek is not None and absolute[rec.channel_id] and cell_us > 0
+                        and (packet.time_base // 1000 // cell_us + 1) * cell_us <= seek):
+                    continue  # the packet's grid cell ends before the range: its events are not decoded
                 try:
                     t, x, y, p = decoders[rec.channel_id].decode(packet)
                 except PacketError as e:
@@ -254,7 +268,6 @@ class McapLogSource:
                 self.recovered_messages += 1
                 self.recovered_events += len(t)
                 cls = selected[rec.channel_id]
-                cell_us = packet_us[rec.channel_id]
                 for chunk in merge.add(t, x, y, p, cls, cell_us):
                     yield check(chunk)
         for chunk in merge.finish():

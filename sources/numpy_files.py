@@ -88,6 +88,13 @@ class NumpySource(FileSource):
             self.set_geometry(fit_geometry(mx, my), "fitted to the events (the file has no size)")
         self.details = {"events": n, "time_unit": self.time_unit}
 
+    def set_time_range(self, start_us: int | None, end_us: int | None) -> bool:
+        """Start at `start_us` by bisection on the time column (a .npy, or an .npz of one array); an .npz
+        of t/x/y/p members is streamed through zlib and cannot skip ahead: False, read from the start."""
+        if self._cols is None:
+            return False
+        return self.seek_rows(self._cols["t"], self.time_unit, start_us)
+
     def _load_npy(self) -> np.ndarray:
         """The .npy memory-mapped; a file shorter than its header promises (np.load said only "mmap
         length is greater than file size") keeps its whole rows, with a warning naming the byte."""

@@ -123,17 +123,35 @@ class RawSource(FileSource):
         self.details = {"header": {k: v for k, v in self.header.items() if not k.startswith("format_")},
                         "body_offset": self.body_offset, "t_origin_us": self.t_origin_us}
 
+    def set_time_range(self, start_us: int | None, end_us: int | None) -> bool:
+        """Skip to `start_us` without decoding the events before it: the decoder's state (time base,
+        wraps, and for EVT3 the row and vector base) is followed word by word — EVT's clock wraps (every
+        16.8 s in EVT3), so where a time lies in the file is only known from its start — and decoding
+        begins at the first word from which an event can be in the range (`skip_before`)."""
+        self._seek_us = None if start_us is None else int(start_us) - self.t_origin_us
+        return start_us is not None
+
     def _blocks(self) -> Iterator[Block]:
         dec = evt3.Evt3Decoder() if self.version == "evt3" else evt2.Evt2Decoder()
         word = 2 if self.version == "evt3" else 4
         pos = self.body_offset
         unknown_seen = 0
+        seek = getattr(self, "_seek_us", None)
         with builtins.open(self.path, "rb") as f:
             f.seek(pos)
             while True:
                 data = f.read(self.block_bytes)
                 if not data:
                     break
+                if seek is not None:
+                    rest = dec.skip_before(data, seek)
+                    if rest is None:  # the whole block is before the range
+                        pos += len(data)
+                        self.fraction_read = min(1.0, pos / max(1, self.file_size))
+                        continue
+                    seek = None
+                    pos += len(data) - len(rest)
+                    data = rest
                 before = copy.deepcopy(dec)
                 t, x, y, p = dec.decode(data)
                 unknown = dec.counters["unknown"] - unknown_seen

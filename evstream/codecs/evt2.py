@@ -130,6 +130,55 @@ class Evt2Decoder:
         return out_t[:k], out_x[:k], out_y[:k], out_p[:k]
 
 
+    def skip_before(self, data, start_us: int) -> bytes | None:
+        """Skip ahead to `start_us` without decoding events: follow the time base (TIME_HIGH words and
+        their wraps) through the block up to the first TIME_HIGH whose events may be at or after
+        `start_us` (base + 63 >= start_us). Returns the bytes from that word on, for `decode`, which then
+        gives exactly the events decoding from the start would from there (every event before the word
+        is earlier than `start_us`: a CD word's time is at most its TIME_HIGH's base + 63); None when the
+        whole block lies before (a partial word is kept for the next block). Only wraps are counted in
+        the words skipped."""
+        raw = np.frombuffer(self._pending + bytes(memoryview(data)), np.uint8)
+        self._pending = b""
+        cut = len(raw) - len(raw) % 4
+        i = _skip_kernel(raw[:cut].view("<u4"), self.state, self._counters, start_us)
+        if 4 * i == cut:
+            self._pending = raw[cut:].tobytes()
+            self.bytes_in += cut
+            return None
+        self.bytes_in += 4 * i
+        return raw[4 * i:].tobytes()
+
+
+@numba.njit(cache=True, nogil=True)
+def _skip_kernel(words, state, counters, start_us):
+    """The decoder's time base over `words` up to the first TIME_HIGH word whose base + 63 >= start_us;
+    returns its index (len(words): none), the state left as before that word."""
+    high = state[_HIGH]
+    loops = state[_LOOPS]
+    has_high = state[_HAS_HIGH]
+    for i in range(len(words)):
+        w = np.int64(words[i])
+        if w >> 28 == 0x8:
+            new_high = w & 0xFFFFFFF
+            wrap = has_high and high - new_high >= _WRAP_MIN_DROP
+            new_loops = loops + 1 if wrap else loops
+            if (new_loops << 34) + (new_high << 6) + 63 >= start_us:
+                state[_HIGH] = high
+                state[_LOOPS] = loops
+                state[_HAS_HIGH] = has_high
+                return i
+            if wrap:
+                counters[_WRAPS] += 1
+            high = new_high
+            loops = new_loops
+            has_high = 1
+    state[_HIGH] = high
+    state[_LOOPS] = loops
+    state[_HAS_HIGH] = has_high
+    return len(words)
+
+
 def decode(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One-shot decode of a whole EVT2 byte string (no header) into (t, x, y, p)."""
     return Evt2Decoder().decode(data)

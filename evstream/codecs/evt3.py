@@ -238,6 +238,76 @@ class Evt3Decoder:
         return tuple(np.concatenate([p[k] for p in parts]) for k in range(4))
 
 
+    def skip_before(self, data, start_us: int) -> bytes | None:
+        """Skip ahead to `start_us` without decoding events: follow the decoder's state (time, wraps, y,
+        vector base) through the block up to the first TIME_HIGH or TIME_LOW word that sets the time to
+        `start_us` or later. Returns the bytes from that word on, for `decode`, which then gives exactly
+        the events decoding from the start would from there (every event before the word takes a time set
+        before it, earlier than `start_us`); None when the whole block lies before (an odd byte is kept
+        for the next block). Only wraps are counted in the words skipped."""
+        raw = np.frombuffer(self._pending + bytes(memoryview(data)), np.uint8)
+        self._pending = b""
+        cut = len(raw) - len(raw) % 2
+        i = _skip_kernel(raw[:cut].view("<u2"), self.state, self._counters, start_us)
+        if 2 * i == cut:
+            self._pending = raw[cut:].tobytes()
+            self.bytes_in += cut
+            return None
+        self.bytes_in += 2 * i
+        return raw[2 * i:].tobytes()
+
+
+@numba.njit(cache=True, nogil=True)
+def _skip_kernel(words, state, counters, start_us):
+    """The decoder's state over `words` (as `_decode_kernel`, events not written) up to the first word that
+    sets the time to start_us or later (a TIME_HIGH or TIME_LOW, once there is a time base); returns its
+    index (len(words): none), the state left as before that word."""
+    high = state[_HIGH]
+    low = state[_LOW]
+    y = state[_Y]
+    base_x = state[_BASE_X]
+    pol = state[_POL]
+    loops = state[_LOOPS]
+    has_high = state[_HAS_HIGH]
+    i = 0
+    nw = len(words)
+    while i < nw:
+        w = np.int64(words[ix(i)])
+        kind = w >> 12
+        payload = w & 0xFFF
+        if kind == 0x8 or kind == 0x6:
+            new_high, new_low, new_loops, wrap = high, low, loops, False
+            if kind == 0x8:
+                wrap = has_high and payload < high and high - payload >= _WRAP_MIN_DROP
+                new_loops = loops + 1 if wrap else loops
+                new_high = payload
+            else:
+                new_low = payload
+            if (has_high or kind == 0x8) and (new_loops << 24) + (new_high << 12) + new_low >= start_us:
+                break
+            if wrap:
+                counters[_WRAPS] += 1
+            if kind == 0x8:
+                has_high = 1
+            high, low, loops = new_high, new_low, new_loops
+        elif kind == 0x0:
+            y = payload & 0x7FF
+        elif kind == 0x4 or kind == 0x5:
+            base_x += 12 if kind == 0x4 else 8
+        elif kind == 0x3:
+            base_x = payload & 0x7FF
+            pol = payload >> 11
+        i += 1
+    state[_HIGH] = high
+    state[_LOW] = low
+    state[_Y] = y
+    state[_BASE_X] = base_x
+    state[_POL] = pol
+    state[_LOOPS] = loops
+    state[_HAS_HIGH] = has_high
+    return i
+
+
 def decode(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One-shot decode of a whole EVT3 byte string (no header) into (t, x, y, p)."""
     return Evt3Decoder().decode(data)
