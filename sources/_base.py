@@ -183,10 +183,14 @@ class FileSource:
 
     def seek_rows(self, t: np.ndarray, time_unit: str, start_us: int | None) -> bool:
         """Column readers: start at the first row whose time is >= `start_us`, found by bisection on the
-        time column `t` (in `time_unit`, read where it lies: a memory-mapped .npy touches a few pages).
-        Only when every earlier row is before `start_us` (the largest of them checked: one vectorised
-        pass, no decoding), so the rows skipped are exactly those a time range drops; else False, and
-        the recording is read from its start."""
+        time column `t` (in `time_unit`; element by element, so a memory-mapped .npy reads a few pages).
+
+        The rows skipped are exactly those a time range drops when the file is in time order. Under the
+        'sort' and 'drop' policies a file need not be, so the largest time before the row is checked
+        too (one vectorised pass over the skipped times, no decoding), and the file is read from its
+        start (False) if it is in the range. Under 'error' (the default) a row in the range before the
+        bisection point means time goes back there, which reading from the start refuses: the seek
+        skips that part unchecked."""
         self.first_row = 0
         if start_us is None or not len(t):
             return False
@@ -196,14 +200,16 @@ class FileSource:
         def us(v) -> float:  # as `to_events` converts a time (monotone in v)
             return float(np.rint(np.float64(v) * scale)) if floating else int(v)
 
-        k = int(np.searchsorted(t, start_us / scale if floating else start_us, side="left"))
-        while k > 0 and us(t[k - 1]) >= start_us:
-            k -= 1
-        while k < len(t) and us(t[k]) < start_us:
-            k += 1
-        if k and not us(np.max(t[:k])) < start_us:  # not in time order: a row before k is in the range
+        lo, hi = 0, len(t)  # first row with us(t) >= start_us, if t rises
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if us(t[mid]) < start_us:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo and self.timestamps != "error" and not us(np.max(t[:lo])) < start_us:
             return False
-        self.first_row = k
+        self.first_row = lo
         return True
 
     def set_geometry(self, g: Geometry | None, source: str) -> None:

@@ -138,8 +138,11 @@ class Evt2Decoder:
         is earlier than `start_us`: a CD word's time is at most its TIME_HIGH's base + 63); None when the
         whole block lies before (a partial word is kept for the next block). Only wraps are counted in
         the words skipped."""
-        raw = np.frombuffer(self._pending + bytes(memoryview(data)), np.uint8)
-        self._pending = b""
+        raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1) if isinstance(data, np.ndarray) else (
+            np.frombuffer(memoryview(data), np.uint8))  # no copy
+        if self._pending:
+            raw = np.concatenate((np.frombuffer(self._pending, np.uint8), raw))
+            self._pending = b""
         cut = len(raw) - len(raw) % 4
         i = _skip_kernel(raw[:cut].view("<u4"), self.state, self._counters, start_us)
         if 4 * i == cut:

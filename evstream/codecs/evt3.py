@@ -245,8 +245,10 @@ class Evt3Decoder:
         the events decoding from the start would from there (every event before the word takes a time set
         before it, earlier than `start_us`); None when the whole block lies before (an odd byte is kept
         for the next block). Only wraps are counted in the words skipped."""
-        raw = np.frombuffer(self._pending + bytes(memoryview(data)), np.uint8)
-        self._pending = b""
+        raw = _as_bytes_array(data)  # no copy
+        if self._pending:
+            raw = np.concatenate((np.frombuffer(self._pending, np.uint8), raw))
+            self._pending = b""
         cut = len(raw) - len(raw) % 2
         i = _skip_kernel(raw[:cut].view("<u2"), self.state, self._counters, start_us)
         if 2 * i == cut:
@@ -259,9 +261,82 @@ class Evt3Decoder:
 
 @numba.njit(cache=True, nogil=True)
 def _skip_kernel(words, state, counters, start_us):
-    """The decoder's state over `words` (as `_decode_kernel`, events not written) up to the first word that
-    sets the time to start_us or later (a TIME_HIGH or TIME_LOW, once there is a time base); returns its
-    index (len(words): none), the state left as before that word."""
+    """The decoder's state over `words` (events not written) up to the first word that sets the time to
+    start_us or later (a TIME_HIGH or TIME_LOW, once there is a time base); returns its index (len(words):
+    none), the state left as before that word.
+
+    Two passes: TIME_HIGH words alone (wraps counted) find the first period whose times can reach
+    start_us (its TIME_HIGH + 4095); the row, time low and vector base standing before it are read back
+    from the last words that set them; `_follow` then goes word by word through that period."""
+    high = state[_HIGH]
+    loops = state[_LOOPS]
+    has_high = state[_HAS_HIGH]
+    nw = len(words)
+    stop = nw
+    if has_high and (loops << 24) + (high << 12) + 0xFFF >= start_us:
+        stop = 0  # the period of the block before already reaches start_us: on word by word
+    for i in range(stop):
+        w = np.int64(words[ix(i)])
+        if w >> 12 == 0x8:
+            payload = w & 0xFFF
+            wrap = has_high and payload < high and high - payload >= _WRAP_MIN_DROP
+            new_loops = loops + 1 if wrap else loops
+            if (new_loops << 24) + (payload << 12) + 0xFFF >= start_us:
+                stop = i
+                break
+            if wrap:
+                counters[_WRAPS] += 1
+            high = payload
+            loops = new_loops
+            has_high = 1
+    _restore(words, stop, state)
+    state[_HIGH] = high
+    state[_LOOPS] = loops
+    state[_HAS_HIGH] = has_high
+    if stop == nw:
+        return nw
+    return stop + _follow(words[stop:], state, counters, start_us)
+
+
+@numba.njit(cache=True, nogil=True)
+def _restore(words, stop, state):
+    """state's time low, row and vector base (base x, polarity) as they stand before word `stop`, from the
+    last words before it that set them (those not set there keep the state's values; vector words
+    after the last VECT_BASE_X move the base on)."""
+    need_low = True
+    need_y = True
+    need_base = True
+    moved = 0
+    j = stop - 1
+    while j >= 0 and (need_low or need_y or need_base):
+        w = np.int64(words[ix(j)])
+        kind = w >> 12
+        payload = w & 0xFFF
+        if kind == 0x6:
+            if need_low:
+                state[_LOW] = payload
+                need_low = False
+        elif kind == 0x0:
+            if need_y:
+                state[_Y] = payload & 0x7FF
+                need_y = False
+        elif need_base:
+            if kind == 0x4:
+                moved += 12
+            elif kind == 0x5:
+                moved += 8
+            elif kind == 0x3:
+                state[_BASE_X] = (payload & 0x7FF) + moved
+                state[_POL] = payload >> 11
+                need_base = False
+        j -= 1
+    if need_base:
+        state[_BASE_X] += moved
+
+
+@numba.njit(cache=True, nogil=True)
+def _follow(words, state, counters, start_us):
+    """`_skip_kernel`'s second pass: every word, as `_decode_kernel` (events not written)."""
     high = state[_HIGH]
     low = state[_LOW]
     y = state[_Y]
@@ -275,7 +350,9 @@ def _skip_kernel(words, state, counters, start_us):
         w = np.int64(words[ix(i)])
         kind = w >> 12
         payload = w & 0xFFF
-        if kind == 0x8 or kind == 0x6:
+        if kind == 0x2:
+            pass
+        elif kind == 0x8 or kind == 0x6:
             new_high, new_low, new_loops, wrap = high, low, loops, False
             if kind == 0x8:
                 wrap = has_high and payload < high and high - payload >= _WRAP_MIN_DROP

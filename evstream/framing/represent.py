@@ -19,11 +19,13 @@ Per window [t_start, t_end) holding n counted events (SIGNAL ones unless `all_ev
   window's span (for fixed-count windows t_start and t_end − 1 are the first and last events, as in
   the paper and tonic).
 
-State: the events a still open window may hold (times and flat pixel indices, in stream order); the
-time surface holds none, only one int64 per pixel and polarity: memory O(W·H + events per window),
-never the stream. Each window's array is computed when it closes from the buffered events in stream order, so
-it is bit-identical however the stream was chunked. Arrays are fresh, C-contiguous float32:
-`torch.from_numpy(rep.data)` shares them without a copy.
+Over fixed time windows (whose span is known when they open) the voxel grid and the last timestamp add
+each event to its window's array as it arrives; over the others an array is computed when its window
+closes, from the window's events buffered in stream order (times and flat pixel indices). The time
+surface buffers no events, only the newest time per pixel and polarity (int32 from a moving base, or
+int64 for long τ). Memory O(W·H + events per window), never the stream. Events are always taken in
+stream order, so every array is bit-identical however the stream was chunked. Arrays are fresh,
+C-contiguous float32: `torch.from_numpy(rep.data)` shares them without a copy.
 """
 
 from __future__ import annotations
