@@ -117,7 +117,7 @@ def test_rotations_turn_the_count_image_as_numpy_does():
     assert np.array_equal(img, base.T)
 
 
-@settings(max_examples=15, deadline=None)
+@settings(max_examples=max(1, settings().max_examples * 3 // 5))  # the invariant kit per example: 3/5
 @given(st.integers(0, 2**32 - 1), st.sampled_from(range(len(SPECS))))
 def test_chunk_invariant_causal_bounded(seed, which):
     spec = SPECS[which]
@@ -177,7 +177,7 @@ def test_bad_parameters_are_refused():
 
 
 # -- kernels against plain Python on random input ---------------------------------------------------
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=2 * settings().max_examples)  # cheap examples: twice the profile
 @given(st.integers(0, 2**32 - 1), st.integers(0, 200))
 def test_kernels_match_plain_python(seed, n):
     rng = np.random.default_rng(seed)
@@ -277,7 +277,7 @@ def test_a_reader_that_seeks_is_asked_to():
     assert src.seeks and src.source.asked == (100, 900)
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=2 * settings().max_examples)  # cheap examples: twice the profile
 @given(st.integers(0, 2**32 - 1), st.integers(0, 200))
 def test_compaction_kernel_matches_plain_python(seed, n):
     from evstream.transforms.base import compact
