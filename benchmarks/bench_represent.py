@@ -65,6 +65,7 @@ def run(rounds: int = 5) -> None:
             extra["vs_tonic"] = f"{best[peer] / best[name]:.1f}x faster"
         if not name.startswith("tonic"):
             extra["peak_MB"] = f"{peak_alloc_bytes(cases[name]) / 2**20:.1f}"
+            extra["target_100M"] = "met" if n / best[name] >= 1e8 else "NOT met"
         report(f"{name}", n / best[name], **extra)
     if why_not:
         print(f"tonic skipped: {why_not}")

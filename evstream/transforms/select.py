@@ -141,8 +141,9 @@ class RateLimit(Transform):
 class TimeRangeSource:
     """The events of `source` with `start_us` <= t < `end_us` (None: open on that side), as a source.
 
-    A reader that can seek (it has `set_time_range(start_us, end_us)` and returns True) starts at the
-    range itself; any other (all of today's) is decoded from its start and filtered here.
+    A reader that can seek (it has `set_time_range(start_us, end_us)` and returns True: RAW EVT 2/3,
+    .npy, .mat, evstream MCAP archives) starts at the range itself, with the events reading from the
+    start would give; any other is decoded from its start. Either way the range is filtered here.
     Either way reading stops at the first chunk whose watermark reaches `end_us` (nothing later can be
     in range), and the last chunk's watermark is capped at `end_us`, so no frame past the range is
     closed by the watermark. Every other attribute (geometry, fraction_read, info) is the source's."""
