@@ -139,7 +139,7 @@ def rebase(last_t, delta):
     becoming its smallest value ("never")."""
     floor = np.iinfo(last_t.dtype).min
     for f in range(len(last_t)):
-        last_t[f] = max(last_t[f] - delta, floor)
+        last_t[f] = max(np.int64(last_t[f]) - delta, floor)  # widened: as plain Python (mutation runs) too
 
 
 EXP_FLOOR = -110.0  # float32 exp underflows to 0 below about −103.97
@@ -151,7 +151,7 @@ def surface_exponent(last_t, t_now, inv_tau, out):
     int64 first). `surface` then takes numpy's vectorised float32 exp: ~10x faster than exp in this
     loop, which numba does not vectorise."""
     for f in range(len(last_t)):
-        out[f] = max(np.float32((last_t[f] - t_now) * inv_tau), np.float32(EXP_FLOOR))
+        out[f] = max(np.float32((np.int64(last_t[f]) - t_now) * inv_tau), np.float32(EXP_FLOOR))
 
 
 def surface(last_t: np.ndarray, t_now: int, tau_us: float, out: np.ndarray) -> None:
