@@ -233,6 +233,13 @@ def test_the_command_replay_prints_for_opening_its_file_runs_in_the_same_shell(t
     assert exe and os.access(exe, os.X_OK), f"{command!r} does not run in that shell"  # was plain 'rerun'
     v = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60)
     assert v.returncode == 0 and "rerun" in v.stdout.lower()
+    # the other way it names replays the recording (was "evstream replay --spawn / --serve": typed with the
+    # .rrd, as the line suggests, it failed: an .rrd is not a recording)
+    alternative = line.split("(or: ")[1].split(" --spawn")[0].split()
+    assert alternative == ["evstream", "replay", str(SHIPPED)]
+    again = subprocess.run([sys.executable, "-m", "evstream.cli", *alternative[1:], "--save", "y.rrd", "--quiet"],
+                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
 
 
 def test_a_reader_that_leaves_early_is_not_an_error_message():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -130,7 +131,7 @@ def cmd_replay(args) -> int:
                       f"max {d['lag_max_ms']:.1f} ms, at the end {d['lag_end_ms']:.1f} ms")
             if save:
                 print(f"wrote {save}{folder_note(created)} — open it with:  {rerun_command()} {save}   "
-                      "(or: evstream replay --spawn / --serve)")
+                      f"(or: evstream replay {shlex.quote(args.source)} --spawn / --serve; the .rrd is the viewer's)")
         sys.stdout.flush()
         if stopped_by:
             where = f"; {save} holds the events up to there" if save else ""
