@@ -14,6 +14,7 @@ import glob
 import logging
 import os
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,10 +43,11 @@ class TaskResult:
     classes: dict | None = None  # noise class name -> events
     error: str | None = None
     summary: dict = field(default_factory=dict)  # what the one-file function returned
+    warnings: list[str] = field(default_factory=list)  # what the reader warned of (a truncated file), one line each
 
     def as_dict(self) -> dict:
         return {"source": self.source, "out": self.out, "status": self.status, "seconds": self.seconds,
-                "events": self.events, "classes": self.classes, "error": self.error}
+                "events": self.events, "classes": self.classes, "error": self.error, "warnings": self.warnings}
 
 
 def _is_recording(path: Path) -> bool:
@@ -147,12 +149,14 @@ def start_client(jobs: int | None = None, scheduler: str | None = None):
 def _run_task(work: Callable, source: str, out: str, params: dict) -> dict:
     """On a worker: the one-file function, timed; its error as one line (the job goes on)."""
     t0 = time.perf_counter()
-    try:
-        summary = work(source, out, **params)
-    except Exception as e:  # one recording's failure is reported, not the job's
-        return {"ok": False, "error": f"{type(e).__name__}: {e}" if not str(e) else str(e),
-                "seconds": time.perf_counter() - t0}
-    return {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0}
+    with warnings.catch_warnings(record=True) as caught:  # a reader's warning (a truncated file) goes back
+        try:  # with the result: a worker's stderr is not the user's (another machine's, with --scheduler)
+            summary = work(source, out, **params)
+        except Exception as e:  # one recording's failure is reported, not the job's
+            return {"ok": False, "error": f"{type(e).__name__}: {e}" if not str(e) else str(e),
+                    "seconds": time.perf_counter() - t0, "warnings": [str(w.message) for w in caught]}
+    return {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0,
+            "warnings": [str(w.message) for w in caught]}
 
 
 def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, client=None, jobs: int | None = None,
@@ -213,10 +217,12 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
 
 
 def _result(t: Task, got: dict) -> TaskResult:
+    said = list(got.get("warnings", ()))
     if not got["ok"]:
-        return TaskResult(t.source, t.out, "failed", seconds=got["seconds"], error=got["error"])
+        return TaskResult(t.source, t.out, "failed", seconds=got["seconds"], error=got["error"], warnings=said)
     s = got["summary"] or {}
     classes = {name: int(s[f"events_{name}"]) for name in ("signal", "background", "hot_pixel")
                if f"events_{name}" in s} or None
     events = s.get("events_in", s.get("events"))
-    return TaskResult(t.source, t.out, "done", seconds=got["seconds"], events=events, classes=classes, summary=s)
+    return TaskResult(t.source, t.out, "done", seconds=got["seconds"], events=events, classes=classes, summary=s,
+                      warnings=said)

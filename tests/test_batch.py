@@ -198,6 +198,25 @@ def test_an_output_folder_inside_the_input_tree_is_not_read_back(client, dataset
     assert "no recording in it outside the output folder" in capsys.readouterr().err
 
 
+def test_a_workers_reader_warning_reaches_the_user_in_one_line(client, dataset, tmp_path, capsys):
+    """A truncated recording in a batch: its reader's warning (on a worker process, maybe another machine)
+    comes back with the task's result and is printed as the one-file command prints it; it was Python's
+    `.../sources/_base.py:249: EventWarning: ...` plus a line of our code, on the worker's stderr."""
+    data = tmp_path / "data"
+    data.mkdir()
+    assert main(["convert", str(dataset / "bar.npz"), str(data / "whole.raw"), "--quiet"]) == 0
+    raw = (data / "whole.raw").read_bytes()
+    (data / "cut.raw").write_bytes(raw[: len(raw) - 3])  # half an EVT3 word at the end
+    capsys.readouterr()
+    argv = ["archive", str(data), str(tmp_path / "out"), "--scheduler", client.scheduler.address, "--quiet", "--json"]
+    assert main(argv) == 0  # read to the end (no --end-us): the truncation is seen
+    captured = capsys.readouterr()
+    said = [line for line in captured.err.splitlines() if "half an EVT3 word" in line]
+    assert len(said) == 1 and said[0].startswith("evstream: warning: ") and "cut.raw" in said[0]
+    report = {Path(r["source"]).name: r for r in json.loads(captured.out)["recordings"]}
+    assert report["whole.raw"]["warnings"] == [] and report["cut.raw"]["warnings"] == [said[0].split(": ", 2)[2]]
+
+
 def test_convert_many_writes_what_the_one_file_command_writes(client, dataset, tmp_path, capsys):
     out = tmp_path / "out"
     argv = ["convert", str(dataset / "synthetic" / "b*.npz"), str(dataset / "turntable.npz"), str(out), "--to", "raw",

@@ -75,6 +75,8 @@ def run_batch(args, work: Callable, suffix: str) -> int:
     progress = Progress(quiet=args.quiet, desc=f"{args.command} ", unit="recordings", delay_s=0.5)
 
     def on_result(r: batch.TaskResult, done: int, total: int) -> None:
+        for said in r.warnings:
+            print(f"evstream: warning: {said}", file=sys.stderr, flush=True)
         if r.status == "failed":
             print(f"evstream: {r.source}: {r.error}", file=sys.stderr, flush=True)
         progress.update(done, total)
