@@ -154,3 +154,12 @@ def test_check_kernel_matches_reference_on_random_events(ev):
     """The numba check against plain Python, events crowding every limit (x = 2047 and 2048, p = 2,
     a step back in time, a first event before `prev`); and the encoder refuses exactly that event."""
     check_kernel_agrees_with_reference(evt2, ev)
+
+
+def test_encoder_spells_a_wrap_top_then_zero():
+    """Crossing a TIME_HIGH wrap, the encoder writes the 28-bit top and then 0, as a camera's counter
+    does, before the new time high."""
+    t0, t1 = 0xFFFFFFF << 6, (1 << 34) + (5 << 6)
+    words = np.frombuffer(evt2.encode(*_at(t0, t1)), "<u4").tolist()
+    cd = 1 << 28 | 3 << 11 | 4
+    assert words == [H | 0xFFFFFFF, cd, H | 0xFFFFFFF, H, H | 5, cd]
