@@ -420,3 +420,12 @@ def test_adaptive_with_a_fixed_overlap_skips_empty_frames_onto_oa_grid(gap_us):
                                          overlap_init_us=400, max_empty_frames=2), [s])
     assert_frames_equal(adaptive, frames_of(OverlapAccumulation(window_us=1000, stride_us=600, max_empty_frames=2),
                                             [s]))
+
+
+def test_overlap_buffer_grows_past_its_initial_size():
+    """A window holding more events than the overlap buffer's initial 16384 (so it grows, keeping what
+    it holds), in chunks of every size, against the reference OA."""
+    s = random_stream(11, 60_000, G, mean_dt_us=0.5)  # ~30,000 events per 15 ms window
+    frames = frames_of(OverlapAccumulation(window_us=15_000, stride_us=5_000), split(s, [0, 7, 20_000, 20_001, len(s)]))
+    assert max(fr.n_events for fr in frames) > 1 << 14
+    assert_frames_equal(frames, ref_oa(s, window_us=15_000, stride_us=5_000))
