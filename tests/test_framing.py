@@ -17,6 +17,7 @@ from evstream.testing import (
     assert_framer_causal,
     assert_frames_equal,
     frames_of,
+    one_event_chunks,
     random_bounds,
     random_stream,
     split,
@@ -429,3 +430,13 @@ def test_overlap_buffer_grows_past_its_initial_size():
     frames = frames_of(OverlapAccumulation(window_us=15_000, stride_us=5_000), split(s, [0, 7, 20_000, 20_001, len(s)]))
     assert max(fr.n_events for fr in frames) > 1 << 14
     assert_frames_equal(frames, ref_oa(s, window_us=15_000, stride_us=5_000))
+
+
+def test_fn_an_event_on_the_deadline_starts_the_next_frame():
+    """An FN frame spans [first, first + max_window_us): an event exactly at the deadline closes it and
+    opens the next one, in one chunk and one event at a time (the watermark then sits on the deadline)."""
+    s = EventChunk.from_arrays([100, 150, 600, 601, 1100], [1, 2, 3, 4, 5], [1, 2, 3, 4, 5], [1, 0, 1, 1, 0], G)
+    for chunks in ([s], one_event_chunks(s)):
+        frames = frames_of(FixedCount(n_events=10, max_window_us=500), chunks)
+        assert_frames_equal(frames, ref_fn(s, n_events=10, max_window_us=500))
+        assert [(f.t_start, f.t_end, f.n_events) for f in frames] == [(100, 600, 2), (600, 1100, 2), (1100, 1101, 1)]
