@@ -334,3 +334,16 @@ def test_cascade_score_is_the_coarse_reference_score_over_its_threshold(coarse):
     hot = codes == NoiseClass.HOT_PIXEL
     assert hot.any() and (score[hot] == -1).all()
     assert np.allclose(score[~hot], density_reference(s, d)[1][~hot] / threshold)
+
+
+def test_dc_on_a_one_pixel_sensor_judges_the_pixel_by_its_own_activity():
+    """A pixel with no neighbour (a 1x1 sensor) is hot when its own active bins pass λ·n, as the
+    reference says; the neighbours' mean does not apply."""
+    g1 = Geometry(1, 1)
+    t = np.arange(0, 2_000_000, 997)
+    ev = EventChunk.from_arrays(t, np.zeros(len(t)), np.zeros(len(t)), np.ones(len(t)), g1)
+    f = TimeSeriesFilter(rate_hz=1000.0, lam=0.2)
+    codes, score = f.classify_scored(ev)
+    want_hot, want_score = dc_reference(ev, TimeSeriesFilter(rate_hz=1000.0, lam=0.2))
+    assert (codes == NoiseClass.HOT_PIXEL).any()
+    assert np.array_equal(codes == NoiseClass.HOT_PIXEL, want_hot) and np.allclose(score, want_score)
