@@ -291,3 +291,34 @@ def test_compaction_kernel_matches_plain_python(seed, n):
     k = compact(flags, t, x, y, p, *out)
     ref = [(int(t[i]), int(x[i]), int(y[i]), int(p[i]), i) for i in range(n) if flags[i]]
     assert list(zip(*(a[:k].tolist() for a in out))) == ref
+
+
+def test_an_empty_time_range_is_said_in_one_line(tmp_path, capsys):
+    """--start-us past the last event (or a range holding none; often a time in the wrong unit or origin)
+    wrote an empty output with exit 0 and not a word: now one warning line naming the file, the range and
+    the times read; a seeking reader (EVT3) that skips everything says so too. A range with events says
+    nothing."""
+    import warnings
+    from pathlib import Path
+
+    import evstream
+    from evstream.cli import main
+
+    rec = Path(__file__).resolve().parents[1] / "recordings" / "bar.npz"
+    raw = tmp_path / "bar.raw"
+    assert main(["convert", str(rec), str(raw), "--quiet"]) == 0
+    for path, seeks in ((rec, False), (raw, True)):
+        capsys.readouterr()
+        assert main(["convert", str(path), str(tmp_path / "empty.npz"), "--start-us", "99999999", "--quiet"]) == 0
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and err[0].startswith(f"evstream: warning: {path}: no event in the time range 99999999")
+        assert evstream.info(tmp_path / "empty.npz")["events"] == 0
+        with pytest.warns(UserWarning, match="no event in the time range 5 <= t < 6 µs"):
+            assert len(evstream.read(path, start_us=5, end_us=6)) == 0
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            source = evstream.open(path, start_us=99999999)
+            assert source.seeks is seeks and list(source) == []
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert len(evstream.read(path, start_us=100_000)) > 0

@@ -161,13 +161,32 @@ class TimeRangeSource:
     def __iter__(self):
         end = self.end_us
         started = False
-        for chunk in self.source:
-            out = self._range(chunk)
-            done = end is not None and chunk.t_end >= end
-            if done and out.t_end > end:
-                out = out.replace(t_end=end)
-            if len(out) or started:
-                started = True
-                yield out
-            if done:
-                return
+        span = None  # the first and last times read, for the warning below
+        try:
+            for chunk in self.source:
+                if len(chunk):
+                    span = (int(chunk.t[0]) if span is None else span[0], int(chunk.t[-1]))
+                out = self._range(chunk)
+                done = end is not None and chunk.t_end >= end
+                if done and out.t_end > end:
+                    out = out.replace(t_end=end)
+                if len(out) or started:
+                    started = True
+                    yield out
+                if done:
+                    return
+        finally:
+            if not started and (span is not None or self.seeks):
+                self._warn_empty(span)
+
+    def _warn_empty(self, span) -> None:
+        """An empty range is most often a typo or a time in the wrong unit or origin (a recording's times
+        may be since 1970): said once, in one line, instead of an empty output without a word."""
+        import warnings
+
+        where = getattr(self.source, "path", None)
+        lo = "" if self.start_us is None else f"{self.start_us} <= "
+        hi = "" if self.end_us is None else f" < {self.end_us}"
+        read = f"; the events read run from {span[0]} to {span[1]} µs" if span is not None else ""
+        warnings.warn(f"{where + ': ' if where else ''}no event in the time range {lo}t{hi} µs "
+                      f"(start_us/end_us, --start-us/--end-us){read}", UserWarning, stacklevel=3)
