@@ -95,7 +95,10 @@ class NativeSource:
                                  f"camera ({MAX_SENSOR_SIDE} a side); pass geometry=(width, height) if it is real")
             self.meta = self._meta() if "meta" in files else {}
             self.has_labels = "label" in files
-            self.n_events = self._columns()["t"].rows  # every column's header checked here
+            columns = self._columns()  # every column's header checked here
+            self.n_events = columns["t"].rows
+            for m in columns.values():
+                m.close()
             self.file_size = os.path.getsize(self.path)
         except ZIP_ERRORS as e:
             if isinstance(e, EventError):

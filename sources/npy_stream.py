@@ -117,11 +117,17 @@ class Member:
             raise ValueError(f"its header says {self.shape} of {self.dtype}, its data is "
                              f"{info.file_size - self.offset} bytes")
         self._stream = stream
+        self._file = stream.f
         self._head = head[self.offset:]  # data bytes already read
 
     @property
     def rows(self) -> int:
         return self.shape[0] if self.shape else 1
+
+    def close(self) -> None:
+        """Close the file of a member not read to its end (only its header looked at, or a stream left early)."""
+        self._file.close()  # reading it again raises "read twice"; closing twice is nothing
+        self._stream = None
 
     def _data(self) -> Iterator[bytes]:
         """The data bytes, once, in pieces (from where the header ended)."""
@@ -230,6 +236,14 @@ class _MemberBytes:
 
 def lockstep(members: dict[str, Member], rows: int) -> Iterator[dict[str, np.ndarray]]:
     """Blocks of `rows` rows of every member at once (members of equal length), as {name: array}."""
+    try:
+        yield from _lockstep(members, rows)
+    finally:  # left early (a time range's end reached, an error): the members' files closed now, not by the GC
+        for m in members.values():
+            m.close()
+
+
+def _lockstep(members: dict[str, Member], rows: int) -> Iterator[dict[str, np.ndarray]]:
     its = {k: m.blocks(rows) for k, m in members.items()}
     while True:
         block = {k: next(it, None) for k, it in its.items()}  # every member to its end: its CRC is checked

@@ -147,3 +147,23 @@ def test_progress_bar_gives_the_percent_of_the_file(tmp_path):
         p(types.SimpleNamespace(stats=stats))
         p.done()
         assert stream.getvalue() == ""
+
+
+def test_a_native_file_is_closed_when_reading_ends_early_or_never_starts():
+    """`evstream.info`, `open` without reading, and a time range that stops reading early each left the
+    file open for the garbage collector (ResourceWarning: unclosed file, under pytest and `python -X dev`):
+    the header check opened every column, and the column streams of a read left early stayed open."""
+    import gc
+    import warnings
+    from pathlib import Path
+
+    import evstream
+
+    rec = Path(__file__).resolve().parents[1] / "recordings" / "bar.npz"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        evstream.info(rec)
+        evstream.open(rec)
+        assert 0 < len(evstream.read(rec, end_us=60_000)) < len(evstream.read(rec))
+        gc.collect()
+    assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
