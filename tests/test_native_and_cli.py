@@ -167,3 +167,15 @@ def test_a_native_file_is_closed_when_reading_ends_early_or_never_starts():
         assert 0 < len(evstream.read(rec, end_us=60_000)) < len(evstream.read(rec))
         gc.collect()
     assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
+
+
+def test_info_on_an_empty_range_says_no_events(capsys):
+    """`evstream info REC --start-us` past the end printed 'duration 0.000000 s  (None .. None µs)'."""
+    from pathlib import Path
+
+    rec = Path(__file__).resolve().parents[1] / "recordings" / "bar.npz"
+    assert main(["info", str(rec), "--start-us", "99999999"]) == 0
+    out = capsys.readouterr().out
+    assert "None" not in out and "duration   -  (no events)" in out
+    assert main(["info", str(rec)]) == 0
+    assert "(0 .. " in capsys.readouterr().out

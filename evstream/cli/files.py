@@ -32,7 +32,7 @@ def cmd_info(args) -> int:
     where = out["source"].get("geometry_from")
     print(f"  geometry   {out['width']}x{out['height']}" + (f"  (from {where})" if where else ""))
     print(f"  events     {n:,}")
-    print(f"  duration   {duration / 1e6:.6f} s  ({t_first} .. {t_last} µs)")
+    print(f"  duration   {duration / 1e6:.6f} s  ({t_first} .. {t_last} µs)" if n else "  duration   -  (no events)")
     print(f"  rate       {out['rate_hz'] / 1e3:,.1f} k events/s")
     print(f"  ON         {100 * out['on_fraction']:.1f} %")
     if out["labels"]:
