@@ -12,7 +12,8 @@ writer thread (`WriteBehind`: the sinks' encoding, compression and writing) over
 - Stopping early (Ctrl-C, an error in the stages) stops the reader at its next chunk and lets the
   writer finish what it was given, so sinks close a file whole up to there.
 
-`EVSTREAM_THREADS=0` in the environment runs the commands serially (for comparisons and debugging).
+`EVSTREAM_THREADS=0` (or 1) in the environment runs every command serially (or threaded), for comparisons
+and debugging; without it each command uses what measured faster for it (`enabled(default)`).
 """
 
 from __future__ import annotations
@@ -30,9 +31,14 @@ _END = object()
 _POLL_S = 0.05  # how often a blocked thread looks whether it should stop
 
 
-def enabled() -> bool:
-    """Whether commands overlap reading, stages and writing (not when EVSTREAM_THREADS=0)."""
-    return os.environ.get("EVSTREAM_THREADS", "1").strip().lower() not in ("0", "no", "off", "false")
+def enabled(default: bool = True) -> bool:
+    """Whether a command overlaps reading, stages and writing: EVSTREAM_THREADS (0/1) when set, else the
+    command's `default` — measured per command (docs/archive.md): on this project's 2-core machine threads
+    pay in `archive` and cost time in `replay --save` and `convert`, whose sinks are GIL-bound Python."""
+    value = os.environ.get("EVSTREAM_THREADS")
+    if value is None or not value.strip():
+        return default
+    return value.strip().lower() not in ("0", "no", "off", "false")
 
 
 class ReadAhead:

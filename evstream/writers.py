@@ -257,8 +257,8 @@ def convert(path, out, *, evt: int | str = 3, on_progress=None, **options) -> di
     sink = FileSink(out, geometry=source.geometry, keep_noise=True, evt=evt, meta=meta, inputs=[path])
     writer = SinkWriter(sink)
     try:
-        with writer, ReadAhead(source) if enabled() else contextlib.nullcontext(source) as chunks:
-            for chunk in chunks:  # read on a thread of its own (evstream.threads); RAW encoded on another
+        with writer, ReadAhead(source) if enabled(default=False) else contextlib.nullcontext(source) as chunks:
+            for chunk in chunks:  # serial unless EVSTREAM_THREADS=1: a reader thread measured slower here
                 writer.write(chunk)
                 if on_progress is not None:
                     on_progress(sink.events, getattr(source, "fraction_read", None))

@@ -21,6 +21,7 @@ from evstream.events import EventChunk, EventError, Geometry
 from evstream.pipeline import Pipeline, build
 from evstream.testing import random_stream
 from evstream.threads import ReadAhead, WriteBehind
+from evstream.threads import enabled as threads_enabled
 from evstream.writers import FileSink
 
 G = Geometry(64, 48)
@@ -272,3 +273,17 @@ def test_threaded_replay_logs_what_the_serial_replay_logs(tmp_path):
     serial, threaded = _rrd_content(tmp_path / "False.rrd"), _rrd_content(tmp_path / "True.rrd")
     assert len(serial["/events/signal"]) > 1000 and len(serial["/frames/fw"]) > 10
     assert serial == threaded
+
+
+@pytest.mark.parametrize("value, default, expected", [
+    (None, True, True), (None, False, False), ("", False, False),
+    ("1", False, True), ("yes", False, True), ("0", True, False), ("off", True, False), ("false", True, False),
+])
+def test_each_command_keeps_its_measured_default_unless_evstream_threads_says(monkeypatch, value, default, expected):
+    """archive defaults to threads, replay and convert to serial (docs/archive.md says why); the variable
+    overrides either way."""
+    if value is None:
+        monkeypatch.delenv("EVSTREAM_THREADS", raising=False)
+    else:
+        monkeypatch.setenv("EVSTREAM_THREADS", value)
+    assert threads_enabled(default) is expected
