@@ -109,22 +109,27 @@ def test_skip_before_returns_the_words_from_the_first_that_can_be_in_range(codec
             assert start > s.t[-1]
 
 
+def seek_in_blocks(dec, data: bytes, start_us: int, block: int) -> list:
+    """`data` fed to `dec` `block` bytes at a time: `skip_before` until a block reaches start_us, `decode`
+    from there on; the decoded (t, x, y, p) of each block."""
+    parts, seeking = [], True
+    for a in range(0, len(data), block):
+        piece = data[a:a + block]
+        if seeking:
+            piece = dec.skip_before(piece, start_us)
+            if piece is None:
+                continue
+            seeking = False
+        parts.append(dec.decode(piece))
+    return parts
+
+
 def test_skip_before_in_blocks_of_any_size():
     s = spread(5, 2000, 50_000_000)
     data = evt3.encode(s.t, s.x, s.y, s.p)
     start = 20_000_000
     for block in (1, 3, 64, 1001):
-        dec = evt3.Evt3Decoder()
-        parts, seeking = [], True
-        for a in range(0, len(data), block):
-            piece = data[a:a + block]
-            if seeking:
-                piece = dec.skip_before(piece, start)
-                if piece is None:
-                    continue
-                seeking = False
-            parts.append(dec.decode(piece)[0])
-        t = np.concatenate(parts)
+        t = np.concatenate([q[0] for q in seek_in_blocks(evt3.Evt3Decoder(), data, start, block)])
         np.testing.assert_array_equal(t[t >= start], s.t[s.t >= start])
 
 
@@ -202,16 +207,7 @@ def test_evt3_skip_restores_rows_and_vector_bases(seed, start, block):
     the words before it, in this block or carried over from earlier ones."""
     s = rows_of_events(seed, 300, 50_000_000)
     data = evt3.encode(s.t, s.x, s.y, s.p)
-    dec = evt3.Evt3Decoder()
-    parts, seeking = [], True
-    for a in range(0, len(data), block):
-        piece = data[a:a + block]
-        if seeking:
-            piece = dec.skip_before(piece, start)
-            if piece is None:
-                continue
-            seeking = False
-        parts.append(dec.decode(piece))
+    parts = seek_in_blocks(evt3.Evt3Decoder(), data, start, block)
     t, x, y, p = (np.concatenate([q[k] for q in parts]) if parts else np.zeros(0) for k in range(4))
     keep, sel = t >= start, s.t >= start
     for got, want in ((t, s.t), (x, s.x), (y, s.y), (p, s.p)):
@@ -244,16 +240,7 @@ def test_evt3_skip_follows_state_words_across_periods(seed, block):
     data = np.array(words, "<u2").tobytes()
     t_all = evt3.decode(data)[0]
     for start in (0, int(np.median(t_all)) if len(t_all) else 1, int(t_all.max()) if len(t_all) else 2):
-        dec = evt3.Evt3Decoder()
-        parts, seeking = [], True
-        for a in range(0, len(data), 2 * block):
-            piece = data[a:a + 2 * block]
-            if seeking:
-                piece = dec.skip_before(piece, start)
-                if piece is None:
-                    continue
-                seeking = False
-            parts.append(dec.decode(piece))
+        parts = seek_in_blocks(evt3.Evt3Decoder(), data, start, 2 * block)
         want = [a[t_all >= start] for a in evt3.decode(data)]
         got = [np.concatenate([q[k] for q in parts]) if parts else np.zeros(0, a.dtype) for k, a in enumerate(want)]
         keep = got[0] >= start
