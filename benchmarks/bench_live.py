@@ -72,30 +72,55 @@ def finish(p) -> tuple[str, float]:
     return out, usage.ru_utime + usage.ru_stime
 
 
+def last_json(p) -> tuple[dict, float]:
+    """`finish(p)`, its stdout's last line (the command's --json summary) parsed: (summary, CPU s)."""
+    text, total = finish(p)
+    return json.loads(text.strip().splitlines()[-1]), total
+
+
+def start(procs: list, stream: str, ready: str, *args: str):
+    """`evstream ARGS`, added to `procs` (killed at the end if still running), once `ready` is on `stream`."""
+    p = cli(*args)
+    procs.append(p)
+    wait_line(p, stream, ready)
+    return p
+
+
+def router_and_reader(procs: list, ep: str, *until_end: str):
+    """A router listening on `ep` and a reader of every cleaned stream (`--until-end` [N cameras])."""
+    router = start(procs, "stdout", "listening on", "router", "--listen", ep, "--json")
+    final = start(procs, "stderr", "subscribed to", "subscribe", "evstream/*/events/clean", "--denoise", "none",
+                  "--connect", ep, "--until-end", *until_end, "--idle-s", "120", "--depth", "256", "--json")
+    return router, final
+
+
+def denoise_node(procs: list, ep: str, keyexpr: str):
+    """A denoise node republishing `keyexpr` cleaned."""
+    return start(procs, "stderr", "subscribed to", "subscribe", keyexpr, "--republish", "--wait-subscribers", "10",
+                 "--connect", ep, "--until-end", "--idle-s", "120", "--depth", "256", "--json")
+
+
+def kill_left(procs: list) -> None:
+    for p in procs:
+        if p.returncode is None and p.poll() is None:
+            p.kill()
+            p.wait()
+
+
 def run_chain(recording: Path, n_events: int, rate_hz: float, load_hz: float, packet_us: int) -> dict:
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     procs = []
     try:
-        router = cli("router", "--listen", ep, "--json")
-        procs.append(router)
-        wait_line(router, "stdout", "listening on")
-        final = cli("subscribe", "evstream/*/events/clean", "--denoise", "none", "--connect", ep, "--until-end",
-                    "--idle-s", "120", "--depth", "256", "--json")
-        procs.append(final)
-        wait_line(final, "stderr", "subscribed to")
-        node = cli("subscribe", "evstream/*/events", "--republish", "--wait-subscribers", "10", "--connect", ep,
-                   "--until-end", "--idle-s", "120", "--depth", "256", "--json")
-        procs.append(node)
-        wait_line(node, "stderr", "subscribed to")
+        router, final = router_and_reader(procs, ep)
+        node = denoise_node(procs, ep, "evstream/*/events")
         before = {name: cpu_s(p.pid) for name, p in (("router", router), ("node", node), ("subscriber", final))}
         pub = cli("publish", str(recording), "--key", "evstream/cam/events", "--connect", ep, "--speed",
                   str(load_hz / rate_hz), "--wait-subscribers", "10", "--packet-us", str(packet_us), "--json")
         procs.append(pub)
         outs, cpu = {}, {}
         for name, p in (("publisher", pub), ("node", node), ("subscriber", final)):
-            text, cpu[name] = finish(p)
-            outs[name] = json.loads(text.strip().splitlines()[-1])
+            outs[name], cpu[name] = last_json(p)
         cpu["router"] = cpu_s(router.pid)
         router.terminate()
         _, total = finish(router)
@@ -104,10 +129,7 @@ def run_chain(recording: Path, n_events: int, rate_hz: float, load_hz: float, pa
             cpu[name] -= before[name]
         cpu["publisher"] = outs["publisher"]["cpu_s"]
     finally:
-        for p in procs:
-            if p.returncode is None and p.poll() is None:
-                p.kill()
-                p.wait()
+        kill_left(procs)
     sent, cleaned, got = outs["publisher"], outs["node"]["cameras"]["cam"], outs["subscriber"]["cameras"]["cam"]
     span_s = sent["wall_s"] + got["latency_max_ms"] * 1e-3
     return {"offered_hz": load_hz, "published": sent["events"], "packets": sent["packets"],
@@ -129,44 +151,28 @@ def run_cameras(recording: Path, n_cams: int, packet_us: int) -> dict:
     cams = [f"cam{i}" for i in range(n_cams)]
     procs = []
     try:
-        router = cli("router", "--listen", ep, "--json")
-        procs.append(router)
-        wait_line(router, "stdout", "listening on")
-        final = cli("subscribe", "evstream/*/events/clean", "--denoise", "none", "--connect", ep, "--until-end",
-                    str(n_cams), "--idle-s", "120", "--depth", "256", "--json")
-        procs.append(final)
-        wait_line(final, "stderr", "subscribed to")
-        nodes = []
-        for cam in cams:
-            nodes.append(cli("subscribe", f"evstream/{cam}/events", "--republish", "--wait-subscribers", "10",
-                             "--connect", ep, "--until-end", "--idle-s", "120", "--depth", "256", "--json"))
-            procs.append(nodes[-1])
-            wait_line(nodes[-1], "stderr", "subscribed to")
+        router, final = router_and_reader(procs, ep, str(n_cams))
+        nodes = [denoise_node(procs, ep, f"evstream/{cam}/events") for cam in cams]
         before = {p.pid: cpu_s(p.pid) for p in (router, final, *nodes)}
         pubs = [cli("publish", str(recording), "--key", f"evstream/{cam}/events", "--connect", ep, "--speed", "0",
                     "--wait-subscribers", "10", "--packet-us", str(packet_us), "--json") for cam in cams]
         procs += pubs
         sent, cpu = [], {"publisher": 0.0, "node": 0.0}
         for p in pubs:
-            text, _ = finish(p)
-            sent.append(json.loads(text.strip().splitlines()[-1]))
+            sent.append(last_json(p)[0])
             cpu["publisher"] += sent[-1]["cpu_s"]
         node_events = 0
         for cam, p in zip(cams, nodes):
-            text, total = finish(p)
-            node_events += json.loads(text.strip().splitlines()[-1])["cameras"][cam]["events"]
+            summary, total = last_json(p)
+            node_events += summary["cameras"][cam]["events"]
             cpu["node"] += total - before[p.pid]
-        text, total = finish(final)
-        got = json.loads(text.strip().splitlines()[-1])
+        got, total = last_json(final)
         cpu["subscriber"] = total - before[final.pid]
         cpu["router"] = cpu_s(router.pid) - before[router.pid]
         router.terminate()
         finish(router)
     finally:
-        for p in procs:
-            if p.returncode is None and p.poll() is None:
-                p.kill()
-                p.wait()
+        kill_left(procs)
     published = sum(s["events"] for s in sent)
     span_s = max(s["wall_s"] for s in sent) + max(c["latency_max_ms"] for c in got["cameras"].values()) * 1e-3
     return {"cameras": n_cams, "published": published, "node_events": node_events,
