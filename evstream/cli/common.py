@@ -290,11 +290,3 @@ def rerun_command() -> str:
     except ValueError:  # another drive (Windows)
         return str(beside)
 
-
-def evstream_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("evstream")
-    except Exception:  # not installed (running from a source tree)
-        return "unknown"
