@@ -60,6 +60,11 @@ class SlidingFramer(FramerBase):
     needed again, so only the later ones are buffered)."""
 
     window_us: int
+    # A representation framer follows the frames' events (so it needs no buffer of its own):
+    # `follower.add(chunk, cls, use_cls, a, b, start, end)` gets the events [a, b) of a chunk as they are
+    # counted into the frame [start, end), in stream order; `follower.carry(start, end, t, f)` the buffered
+    # events (times, flat indices) a new frame [start, end) starts with, when the previous one closes.
+    follower = None
 
     def _reset(self) -> None:
         super()._reset()
@@ -97,6 +102,8 @@ class SlidingFramer(FramerBase):
                 self.n += accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, i, mid, self.counts,
                                      self._width, self._hw)
                 self._buffer(chunk, cls, use_cls, mid, stop)
+                if self.follower is not None and stop > i:
+                    self.follower.add(chunk, cls, use_cls, i, stop, self.start, self.end)
                 i = stop
                 if i == len(chunk):
                     break
@@ -155,6 +162,8 @@ class SlidingFramer(FramerBase):
             out.append(self._frame(self.start, self.end, n, self.counts))
             self.counts = self._new_counts()
             add_flat(self.counts, self.buf_f, j, self.tail)
+            if self.follower is not None and j < self.tail:
+                self.follower.carry(nxt, nxt + self.window_us, self.buf_t[j : self.tail], self.buf_f[j : self.tail])
         self.head = j
         self.n = self.tail - j
         self.start = nxt
