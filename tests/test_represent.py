@@ -26,8 +26,13 @@ from evstream.framing.represent import (
     voxel_of_chunk,
     voxel_table,
     voxel_table_kernel,
+    voxel_count_flat,
+    voxel_count_of_chunk,
     voxel_table_of_chunk,
 )
+from evstream.framing.base import COUNT_MAX
+from evstream.framing.fixed import accumulate
+from evstream.framing.overlap import add_flat
 from evstream.pipeline import Pipeline, build
 from evstream.testing import (
     assert_bounded_state,
@@ -121,6 +126,7 @@ def test_matches_the_definition(kind, window, all_events):
     assert len(frames) > 5
     plain = frames_of(build("framer", {"kind": window, **WINDOWS[window], "all_events": all_events}), [stream])
     assert [(f.t_start, f.t_end, f.n_events) for f in frames] == [(f.t_start, f.t_end, f.n_events) for f in plain]
+    assert all(np.array_equal(f.counts, g.counts) for f, g in zip(frames, plain))  # some counted by the follower
     for fr, ref in zip(frames, reference(kind, stream, frames, window, all_events=all_events)):
         assert isinstance(fr, Representation) and fr.kind == kind
         assert fr.data.dtype == np.float32 and fr.data.flags.c_contiguous and fr.data.flags.owndata
@@ -282,6 +288,27 @@ def test_voxel_table_kernels_are_the_arithmetic_kernels_to_the_bit(seed, n, bins
     arith[:], table[:] = 0, 0
     voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_start + span, bins, width, hw, arith)
     voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_lo, w_hi, table)
+    assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
+
+    # counting and adding in one pass: the counts of `accumulate` / `add_flat` (saturating), the same grid
+    a = int(rng.integers(0, n + 1))
+    start_counts = rng.choice([0, COUNT_MAX - 1, COUNT_MAX], 2 * hw).astype(np.uint16)
+    counts, ref_counts = start_counts.copy(), start_counts.copy()
+    table[:] = 0
+    added = voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, n, t_start, width, hw, lo_at, w_lo, w_hi, counts,
+                                 table)
+    assert added == accumulate(x, y, p, cls, use_cls, a, n, ref_counts, width, hw)
+    assert counts.tolist() == ref_counts.tolist()
+    arith[:] = 0
+    voxel_table_of_chunk(t[a:], x[a:], y[a:], p[a:], cls[a:], use_cls, t_start, width, hw, lo_at, w_lo, w_hi, arith)
+    assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
+    counts, ref_counts = start_counts.copy(), start_counts.copy()
+    table[:] = 0
+    voxel_count_flat(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, counts, table)
+    add_flat(ref_counts, flat[keep], 0, int(keep.sum()))
+    assert counts.tolist() == ref_counts.tolist()
+    arith[:] = 0
+    voxel_table_kernel(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, arith)
     assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
 
 

@@ -42,8 +42,9 @@ from numba import njit
 from ..events import EventChunk, Frame
 from ..nowrap import ix
 from ..pipeline import build, register
-from .base import FramerBase, check_positive_int
-from .overlap import flat_index, flat_index_of
+from .base import COUNT_MAX, FramerBase, check_positive_int
+from .fixed import accumulate
+from .overlap import add_flat, flat_index, flat_index_of
 
 WINDOWS = ("fw", "fn", "oa", "adaptive")
 # The windowing framers' parameters a representation passes on (None: the window's default).
@@ -156,6 +157,38 @@ def voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_
             continue
         _voxel_add_table(out, np.intp(y[j]) * width + np.intp(x[j]), np.intp(p[j]), t[j] - t_start, hw, lo_at,
                          w_lo, w_hi)
+
+
+# Overlapping windows count their events for the frame and add them to the voxel grid in one pass: the
+# events are read once, while in cache (two passes measured ~1.4 ns an event more).
+@njit(cache=True, nogil=True)
+def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_at, w_lo, w_hi, counts, out):
+    """`accumulate` (the frame's saturating counts of the counted events [a, b); returns how many) and
+    `voxel_table_of_chunk` over the same events, in one pass."""
+    added = 0
+    for k in range(a, b):
+        i = ix(k)
+        if use_cls and cls[i] != 0:
+            continue
+        pix = np.intp(y[i]) * width + np.intp(x[i])
+        on = np.intp(p[i])
+        f = ix(on * hw + pix)
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+        added += 1
+        _voxel_add_table(out, pix, on, t[i] - t_start, hw, lo_at, w_lo, w_hi)
+    return added
+
+
+@njit(cache=True, nogil=True)
+def voxel_count_flat(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, counts, out):
+    """`add_flat` (saturating counts) and `voxel_table_kernel` over the same buffered events, in one pass."""
+    for j in range(len(buf_t)):
+        f = np.intp(buf_f[j])
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+        on = np.intp(f >= hw)
+        _voxel_add_table(out, f - hw * on, on, buf_t[j] - t_start, hw, lo_at, w_lo, w_hi)
 
 
 @njit(cache=True, nogil=True)
@@ -374,20 +407,38 @@ class RepresentationFramer(FramerBase):
                       data.reshape(-1))
             i = j
 
-    def add(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, t_start: int, t_end: int) -> None:
-        """Overlapping windows (called by the windowing framer): the chunk's events [a, b) go into the
-        window [t_start, t_end)."""
+    def add(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, t_start: int, t_end: int, counts) -> int:
+        """Overlapping windows (called by the windowing framer, see `SlidingFramer.follower`): the chunk's
+        events [a, b) go into the window [t_start, t_end) and its `counts`; returns how many counted."""
+        out = self._window_data(t_start)
+        n = self._count_add(chunk, cls, use_cls, a, b, t_start, t_end, counts, out)
+        if n is not None:
+            return n
+        self._add(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls, t_start, t_end, out)
+        return accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, a, b, counts, self._width, self._hw)
+
+    def add_flat(self, t: np.ndarray, f: np.ndarray, t_start: int, t_end: int, counts) -> None:
+        """Overlapping windows (called by the windowing framer): counted events (times, flat indices, in
+        stream order) go into the window [t_start, t_end) and its `counts`."""
+        out = self._window_data(t_start)
+        if not self._count_add_flat(t, f, t_start, t_end, counts, out):
+            self._add_flat(t, f, t_start, t_end, out)
+            add_flat(counts, f, 0, len(f))
+
+    def _window_data(self, t_start: int) -> np.ndarray:
+        """The flat array of the window starting at t_start (new, zeroed, at its first event)."""
         data = self._open.get(t_start)
         if data is None:
             data = self._open[t_start] = self._new_data(len(self.channels))
-        self._add(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls, t_start, t_end,
-                  data.reshape(-1))
+        return data.reshape(-1)
 
-    def carry(self, t_start: int, t_end: int, t: np.ndarray, f: np.ndarray) -> None:
-        """Overlapping windows (called by the windowing framer): the window [t_start, t_end) opens with
-        the counted events it shares with the one that closed (times, flat indices, in stream order)."""
-        data = self._open[t_start] = self._new_data(len(self.channels))
-        self._add_flat(t, f, t_start, t_end, data.reshape(-1))
+    def _count_add(self, chunk, cls, use_cls, a, b, t_start, t_end, counts, out) -> int | None:
+        """`add` in one pass where a subclass has a kernel for it (how many counted), else None."""
+        return None
+
+    def _count_add_flat(self, t, f, t_start, t_end, counts, out) -> bool:
+        """`add_flat` in one pass where a subclass has a kernel for it (True), else False."""
+        return False
 
     def _add(self, t, x, y, p, cls, use_cls: bool, t_start: int, t_end: int, out: np.ndarray) -> None:
         """Add events (slices of a chunk's fields, all in the window [t_start, t_end)) to its flat array
@@ -565,6 +616,20 @@ class VoxelGrid(RepresentationFramer):
             voxel_kernel(t, f, t_start, t_end, self.bins, self._hw, out)
         else:
             voxel_table_kernel(t, f, t_start, self._hw, *table, out)
+
+    def _count_add(self, chunk, cls, use_cls, a, b, t_start, t_end, counts, out):
+        table = self._table(t_end - t_start)
+        if table is None:
+            return None
+        return voxel_count_of_chunk(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, a, b, t_start, self._width,
+                                    self._hw, *table, counts, out)
+
+    def _count_add_flat(self, t, f, t_start, t_end, counts, out):
+        table = self._table(t_end - t_start)
+        if table is None:
+            return False
+        voxel_count_flat(t, f, t_start, self._hw, *table, counts, out)
+        return True
 
     def _table(self, span_us: int):
         """The arithmetic table of windows `span_us` long (`voxel_table`), for windows whose span is known
