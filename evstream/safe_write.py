@@ -11,7 +11,9 @@
 - A full disk is one error naming the target: "no space left on the device".
 
 A killed process leaves its temporary where it was (`TARGET.part`): what it wrote so far, the target
-untouched.
+untouched. A run cut short on purpose (Ctrl-C in a file command) closes its output properly and sets it
+aside (`set_aside`) as `STEM.partial.EXT` (`STEM.partial.N.EXT` when taken): readable by every tool that
+reads EXT, named so that nobody takes it for the whole output; the target is left as it was, or absent.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import errno
 import os
 from pathlib import Path
 
-__all__ = ["AtomicOutput", "OutputIsInput", "check_not_input", "is_no_space", "no_space_error"]
+__all__ = ["AtomicOutput", "OutputIsInput", "check_not_input", "is_no_space", "no_space_error", "partial_name"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
@@ -81,6 +83,14 @@ def _create_part(target: Path) -> Path:
     raise OSError(f"{target}: {_MAX_PART_NAMES} temporary files {target.name}.N.part are in the way; remove them")
 
 
+def partial_name(target, n: int = 0) -> Path:
+    """Where a run cut short keeps its output: `STEM.partial.EXT` (n > 0: `STEM.partial.N.EXT`), so that the
+    extension still says the format (viewers pick their loader by it) and the name says it is not whole."""
+    target = Path(os.fspath(target))
+    middle = ".partial" if n == 0 else f".partial.{n}"
+    return target.with_name(f"{target.stem}{middle}{target.suffix}")
+
+
 class AtomicOutput:
     """A temporary file `part` beside `target`; `commit()` renames it onto the target, `discard()` removes
     it (or keeps it, with `keep_partial`). As a context manager: commit on success, discard on error,
@@ -123,6 +133,28 @@ class AtomicOutput:
         self.done = True
         return self.target
 
+    def set_aside(self) -> Path:
+        """The run was cut short on purpose (Ctrl-C) and its output closed whole up to there: keep it under a
+        new name, `partial_name(target)` (created by a hard link, so never over an existing file), and leave
+        the target as it was. Where hard links are not possible the output stays at `part`. Returns where
+        it is."""
+        if self.done:
+            return self.kept or self.target
+        self.done = True
+        self.kept = self.part
+        for n in range(_MAX_PART_NAMES):
+            name = partial_name(self.target, n)
+            try:
+                os.link(self.part, name)
+            except FileExistsError:
+                continue
+            except OSError:  # no hard links here (some network or FAT file systems): keep TARGET.part
+                return self.part
+            self.part.unlink(missing_ok=True)
+            self.kept = name
+            break
+        return self.kept
+
     def discard(self, keep: bool | None = None) -> Path | None:
         """Remove the temporary (or keep it when `keep`, default `keep_partial`, and it holds bytes);
         returns the kept path or None. The target is not touched."""
@@ -147,7 +179,9 @@ class AtomicOutput:
             self.discard(keep=False)
             return no_space_error(self.target)
         kept = self.discard()
-        if kept is not None and len(e.args) == 1 and isinstance(e.args[0], str) and isinstance(e, Exception):
+        if kept is not None and isinstance(e, KeyboardInterrupt) and not e.args:  # a second Ctrl-C
+            e.args = (f"{self.target} left as it was; the output up to there is in {kept}",)
+        elif kept is not None and len(e.args) == 1 and isinstance(e.args[0], str) and isinstance(e, Exception):
             e.args = (f"{e.args[0]} ({self.target} left as it was; the output up to there is in {kept})",)
         return e
 

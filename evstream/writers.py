@@ -282,9 +282,10 @@ def archive(recording, out, *, pipeline: Pipeline | None = None, keep_noise: boo
     `path` names its file, for the provenance and the check that the archive is not written onto it).
     `pipeline`: the stages (and framer) to run; default the paper's cascade; `frames` without a framer
     adds a fixed-window one. `speed`: 1 = real time, 0 = as fast as possible. `on_batch(batch)` after
-    each batch (progress); `stop()` polled between chunks ends the run early, the archive complete up to
-    there. `command`: the command line, kept in the provenance. The archive is written beside OUT and
-    renamed when whole (flushed every `flush_s`: a crash loses at most that), never onto the recording."""
+    each batch (progress); `stop()` polled between chunks ends the run early: the archive of the events so
+    far is closed whole but kept as OUT-STEM.partial.mcap (the summary's `mcap`, with `partial` true), OUT
+    left as it was. `command`: the command line, kept in the provenance. The archive is written beside OUT
+    and renamed when whole (flushed every `flush_s`: a crash loses at most that), never onto the recording."""
     from evstream.sinks.mcap_sink import McapSink
 
     from . import api, threads
@@ -307,8 +308,15 @@ def archive(recording, out, *, pipeline: Pipeline | None = None, keep_noise: boo
                     frames=pipeline.framer is not None, frame_format=frame_format, points=points,
                     packet_us=packet_us, flush_s=flush_s, metadata=provenance,
                     geometry=pipeline.out_geometry(source.geometry), inputs=[path] if path else [])
-    stats = pipeline.run(paced(source, speed), [sink], on_batch=on_batch, threads=threads.enabled(), stop=stop)
-    return {**stats.as_dict(), "mcap": os.fspath(out), "packets": sink.packets, "frames_written": sink.frames_written}
+    def stopped() -> bool:  # cut short: the archive so far is closed whole but kept aside, OUT left as it was
+        if stop is not None and stop():
+            sink.interrupt()
+            return True
+        return False
+
+    stats = pipeline.run(paced(source, speed), [sink], on_batch=on_batch, threads=threads.enabled(), stop=stopped)
+    return {**stats.as_dict(), "mcap": sink.written, "packets": sink.packets, "frames_written": sink.frames_written,
+            "partial": sink.interrupted}
 
 
 def _version() -> str:

@@ -183,3 +183,50 @@ def test_a_disk_that_fills_while_an_archive_is_written_keeps_the_older_archive(f
     assert rc == 1 and "no space left" in one_line_error(err)
     assert out.read_bytes() == b"older archive"
     np.testing.assert_equal(sorted(p.name for p in full_disk.iterdir()), ["a.mcap", "filler"])
+
+
+def test_an_archive_stopped_early_from_the_api_leaves_the_target_and_sets_its_events_aside(tmp_path):
+    """`evstream.archive(..., stop=)` renamed the events so far onto OUT, replacing an older archive."""
+    import evstream
+
+    out = tmp_path / "a.mcap"
+    out.write_bytes(b"older")
+    calls = []
+    summary = evstream.archive(SHIPPED, out, stop=lambda: calls.append(1) or len(calls) >= 2)
+    assert out.read_bytes() == b"older" and not Path(f"{out}.part").exists()
+    assert summary["partial"] is True and summary["mcap"] == str(tmp_path / "a.partial.mcap")
+    assert 0 < len(events_of(summary["mcap"])) == summary["events_signal"] < len(events_of(SHIPPED))
+    whole = evstream.archive(SHIPPED, out)  # not stopped: put in place as before
+    assert whole["partial"] is False and whole["mcap"] == str(out) and out.read_bytes()[:5] != b"older"
+
+
+def test_set_aside_never_replaces_a_file_and_keeps_the_extension(tmp_path):
+    (tmp_path / "x.rrd").write_bytes(b"target")
+    (tmp_path / "x.partial.rrd").write_bytes(b"first")
+    out = AtomicOutput(tmp_path / "x.rrd")
+    out.part.write_bytes(b"second")
+    assert out.set_aside() == tmp_path / "x.partial.1.rrd"
+    assert [(p.name, p.read_bytes()) for p in sorted(tmp_path.iterdir())] == [
+        ("x.partial.1.rrd", b"second"), ("x.partial.rrd", b"first"), ("x.rrd", b"target")]
+
+
+def test_a_second_ctrl_c_keeps_the_archive_so_far_and_says_where(tmp_path):
+    """The second signal raises KeyboardInterrupt mid-run: the target stays, the archive so far is closed in
+    OUT.part and the interruption names it (it said only 'evstream: interrupted')."""
+    import evstream
+
+    class Interrupted:
+        geometry = Geometry(64, 48)
+        path = None
+
+        def __iter__(self):
+            stream = random_stream(5, 20_000, self.geometry, mean_dt_us=50.0)
+            yield stream[:10_000]
+            raise KeyboardInterrupt
+
+    out = tmp_path / "a.mcap"
+    out.write_bytes(b"older")
+    with pytest.raises(KeyboardInterrupt) as e:
+        evstream.archive(Interrupted(), out, pipeline=evstream.build_pipeline("none"))
+    assert str(e.value) == f"{out} left as it was; the output up to there is in {out}.part"
+    assert out.read_bytes() == b"older" and len(events_of(f"{out}.part")) == 10_000
