@@ -11,6 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evstream.events import EventChunk, Geometry
+from evstream.framing.base import COUNT_MAX
+from evstream.framing.fixed import accumulate
+from evstream.framing.overlap import add_flat
 from evstream.framing.represent import (
     EXP_FLOOR,
     NEVER_US,
@@ -22,17 +25,14 @@ from evstream.framing.represent import (
     surface_exponent,
     timestamp_kernel,
     timestamp_of_chunk,
+    voxel_count_flat,
+    voxel_count_of_chunk,
     voxel_kernel,
     voxel_of_chunk,
     voxel_table,
     voxel_table_kernel,
-    voxel_count_flat,
-    voxel_count_of_chunk,
     voxel_table_of_chunk,
 )
-from evstream.framing.base import COUNT_MAX
-from evstream.framing.fixed import accumulate
-from evstream.framing.overlap import add_flat
 from evstream.pipeline import Pipeline, build
 from evstream.testing import (
     assert_bounded_state,
