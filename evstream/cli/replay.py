@@ -132,8 +132,9 @@ def cmd_replay(args) -> int:
                 print(f"real-time lag: median {d['lag_median_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "
                       f"max {d['lag_max_ms']:.1f} ms, at the end {d['lag_end_ms']:.1f} ms")
             if save:
-                print(f"wrote {written}{folder_note(created)} — open it with:  {rerun_command()} {shlex.quote(written)}"
-                      f"   (or: evstream replay {shlex.quote(args.source)} --spawn / --serve; the .rrd is the viewer's)")
+                print(f"wrote {written}{folder_note(created)} — open it with:  {rerun_command()} "
+                      f"{shlex.quote(written)}   (or: evstream replay {shlex.quote(args.source)} --spawn / --serve; "
+                      "the .rrd is the viewer's)")
         sys.stdout.flush()
         if stopped_by:
             where = (f"; {save} {'left as it was' if existed else 'not written'}; the recording of the events up "
