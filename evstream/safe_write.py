@@ -22,7 +22,8 @@ import errno
 import os
 from pathlib import Path
 
-__all__ = ["AtomicOutput", "OutputIsInput", "check_not_input", "is_no_space", "no_space_error", "partial_name"]
+__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "check_not_input", "is_no_space", "no_space_error",
+           "partial_name"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
@@ -195,4 +196,83 @@ class AtomicOutput:
         raised = self.failed(e)
         if raised is not e:
             raise raised from None
+        return False
+
+
+class AtomicFolder:
+    """A folder of outputs (`frames --out DIR`: one file per frame) written whole or not at all: the files
+    go to a new folder beside the target (`DIR.part/`, `DIR.N.part/`, created exclusively) and are moved
+    into DIR only when the run succeeded. There they replace the files of the same kind from an earlier
+    run (`replaces`, e.g. "frame_*.png": no stale frames past the new last one); other files in DIR are
+    not touched. A failed run removes its folder: DIR as it was, and no DIR at all if there was none.
+
+        with AtomicFolder("out/frames", replaces=("frame_*.png",)) as part:
+            write_frames_into(part)
+    """
+
+    def __init__(self, target, replaces=()):
+        self.target = Path(os.fspath(target))
+        self.replaces = tuple(replaces)
+        if self.target.exists() and not self.target.is_dir():
+            raise NotADirectoryError(f"{self.target}: is a file, not a folder")
+        self.target.parent.mkdir(parents=True, exist_ok=True)
+        for n in range(_MAX_PART_NAMES):
+            part = self.target.with_name(f"{self.target.name}.part" if n == 0 else f"{self.target.name}.{n}.part")
+            try:
+                part.mkdir()
+            except FileExistsError:
+                continue
+            self.part = part
+            break
+        else:
+            raise OSError(f"{self.target}: {_MAX_PART_NAMES} temporary folders {self.target.name}.N.part are in the "
+                          "way; remove them")
+        self.done = False
+
+    def commit(self) -> Path:
+        """Move every file written into the target (folders as they were laid out), remove the files of
+        `replaces` the run did not write again, then the temporary folder."""
+        if self.done:
+            return self.target
+        import shutil
+
+        try:
+            written: dict[Path, set[str]] = {}
+            for folder, _, files in os.walk(self.part):
+                rel = Path(folder).relative_to(self.part)
+                dest = self.target / rel
+                dest.mkdir(parents=True, exist_ok=True)
+                written[dest] = set(files)
+                for name in files:
+                    os.replace(Path(folder) / name, dest / name)
+            for dest, names in written.items():
+                for pattern in self.replaces:
+                    for old in dest.glob(pattern):
+                        if old.name not in names and old.is_file():
+                            old.unlink()
+        except OSError as e:
+            if is_no_space(e):
+                raise no_space_error(self.target) from None
+            raise
+        finally:
+            shutil.rmtree(self.part, ignore_errors=True)
+            self.done = True
+        return self.target
+
+    def discard(self) -> None:
+        """Remove the temporary folder and what is in it; the target is not touched."""
+        import shutil
+
+        if not self.done:
+            shutil.rmtree(self.part, ignore_errors=True)
+            self.done = True
+
+    def __enter__(self) -> Path:
+        return self.part
+
+    def __exit__(self, kind, e, tb) -> bool:
+        if e is None:
+            self.commit()
+        else:
+            self.discard()
         return False

@@ -266,6 +266,24 @@ def test_frames_many_writes_what_the_one_file_command_writes_and_a_rerun_skips(c
     assert "--out FOLDER" in capsys.readouterr().err
 
 
+def test_frames_many_leaves_nothing_for_a_recording_that_failed(client, dataset, tmp_path, capsys):
+    """A recording that failed (after some of its frames were written) left its folder OUT/NAME/ behind,
+    empty or half filled, beside the finished ones."""
+    from test_safe_write import text_recording
+
+    data = tmp_path / "data"
+    data.mkdir()
+    shutil.copy(dataset / "bar.npz", data / "good.npz")
+    text_recording(data / "bad.txt", bad_last_line=True)
+    out = tmp_path / "out"
+    argv = ["frames", str(data), "--out", str(out), "--scheduler", client.scheduler.address, "--framer", "fw",
+            "--window-us", "20000", "--quiet"]
+    assert main(argv) == 1
+    assert "bad.txt" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["good", "good.frames.json"]
+    assert len(list((out / "good").glob("frame_*.png"))) > 5
+
+
 def test_eval_many_gives_the_rows_of_the_one_process_eval_and_a_rerun_skips(client, dataset, tmp_path, capsys):
     """`eval DIR/ --out OUT/`: a task per recording; its rows (OUT/PATH.eval.json) are those the one-process
     `eval` computes for it; the tables and --json FILE cover every recording; a re-run skips them all."""

@@ -230,3 +230,40 @@ def test_a_second_ctrl_c_keeps_the_archive_so_far_and_says_where(tmp_path):
         evstream.archive(Interrupted(), out, pipeline=evstream.build_pipeline("none"))
     assert str(e.value) == f"{out} left as it was; the output up to there is in {out}.part"
     assert out.read_bytes() == b"older" and len(events_of(f"{out}.part")) == 10_000
+
+
+def text_recording(path, bad_last_line: bool):
+    """0.4 s of the bar scene as a text file; with `bad_last_line`, one event outside the sensor at the end:
+    the run fails after its frames were written."""
+    from evstream import synth
+
+    c = synth.scene("bar", duration_us=400_000, seed=0)
+    lines = [f"{c.geometry.width} {c.geometry.height}"] + [f"{t} {x} {y} {int(p)}" for t, x, y, p in
+                                                            zip(c.t, c.x, c.y, c.p)]
+    path.write_text("\n".join(lines + (["400001 999 5 1"] if bad_last_line else [])) + "\n")
+    return path
+
+
+def test_frames_out_that_fails_leaves_the_folder_as_it_was(tmp_path, capsys):
+    """A run that failed after writing frames left them (and a new, empty or half-filled folder) behind,
+    over the frames of an earlier run; a whole run replaced frames but kept an earlier run's extra ones."""
+    good, bad = text_recording(tmp_path / "good.txt", False), text_recording(tmp_path / "bad.txt", True)
+    frames = ["--framer", "fw", "--window-us", "20000", "--quiet"]
+    rc, _, err = run(["frames", bad, "--out", tmp_path / "new", *frames], capsys)
+    assert rc == 1 and "outside the 346x260 sensor" in one_line_error(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.txt", "good.txt"]  # no folder, no .part
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "notes.txt").write_text("mine")
+    for i in range(30):
+        (old / f"frame_{i:06d}.png").write_bytes(b"an older frame")
+    before = {p.name: p.read_bytes() for p in old.iterdir()}
+    rc, _, err = run(["frames", bad, "--out", old, *frames], capsys)
+    assert rc == 1 and {p.name: p.read_bytes() for p in old.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.txt", "good.txt", "old"]
+    rc, out, err = run(["frames", good, "--out", old, *frames], capsys)
+    assert rc == 0, err
+    pngs = sorted(p.name for p in old.glob("frame_*.png"))
+    assert pngs == [f"frame_{i:06d}.png" for i in range(20)]  # the 10 older ones past the end are gone
+    assert all((old / name).read_bytes().startswith(b"\x89PNG") for name in pngs)
+    assert (old / "notes.txt").read_text() == "mine" and f"wrote 20 PNG frames to {old}\n" in out
