@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import errno
 import os
+import weakref
 from pathlib import Path
 
-__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "check_not_input", "is_no_space", "no_space_error",
-           "partial_name"]
+__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "check_not_input", "is_no_space",
+           "no_space_error", "partial_name", "reading"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
@@ -50,6 +51,25 @@ def check_not_input(target, inputs, flag: str = "") -> None:
         if path is not None and _identity(path) == mine:
             raise OutputIsInput(f"{flag}{os.fspath(target)}: that is the input recording; "
                                 "writing there would destroy it")
+
+
+# Recordings this process has open for reading (`evstream.open`), weakly: a source that is gone no longer
+# counts. `evstream.open_sink` refuses to write over any of them, so a script cannot destroy the recording
+# it reads, whether or not it says what it reads.
+_READING: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def reading(source, path) -> None:
+    """Note that `source` (an object alive while it is being read) reads the file `path`."""
+    try:
+        _READING[source] = os.fspath(path)
+    except TypeError:  # an object that cannot be weakly referenced: not tracked
+        pass
+
+
+def being_read() -> list[str]:
+    """The files of the sources opened with `evstream.open` that are still alive in this process."""
+    return list(_READING.values())
 
 
 def is_no_space(e: BaseException) -> bool:

@@ -507,6 +507,14 @@ class McapSink:
         self._output.commit()
         self.written = str(self.path)
 
+    def abandon(self) -> None:
+        """Drop the archive unfinished (a sink never closed): its file closed and removed, `path` untouched."""
+        self._closed = True
+        try:
+            self._file.close()
+        finally:
+            self._output.discard(keep=False)
+
     def interrupt(self) -> None:
         """The run is being cut short (Ctrl-C in a file command): `close` still writes a whole archive of
         what came, but sets it aside (`safe_write.AtomicOutput.set_aside`) rather than replacing `path`.
