@@ -78,15 +78,12 @@ class LearnedFilter(InPlaceClassifier):
         while True:
             i = kernel(chunk.t, chunk.x, chunk.y, chunk.p, i, codes, self._threshold, self.hot_min,
                        self._dc_margin, s["word"], s["hsum"], s["block"], s["block_log_scale"],
-                       s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["dc_pos"],
-                       s["dc_per_bin"], s["dc_state"], s["clock"], g.width, g.height, w1, b1, w2, b2,
+                       s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["bins"],
+                       s["clock"], g.width, g.height, w1, b1, w2, b2,
                        score, feats, LOG1P, AGE_LOG1P_MS)
             if i >= n:
                 return score
-            if s["fifo_state"][1] == len(s["fifo_t"]):
-                grow_fifo(s, ("fifo_t", "fifo_pos"))
-            if s["dc_state"][1] == len(s["dc_pos"]):
-                grow_fifo(s, ("dc_pos",), "dc_state")
+            grow_fifo(s, ("fifo_t", "fifo_pos"))
 
     def features(self, chunk: EventChunk) -> np.ndarray:
         """The feature matrix of an unclassified chunk (advances the state like `classify`)."""
