@@ -67,11 +67,11 @@ class LearnedFilter(InPlaceClassifier):
              features: np.ndarray | None = None) -> np.ndarray:
         s = self._state
         g = chunk.geometry
-        if s is None or s["geometry"] != g:
+        if s is None or (s["geometry"] is not g and s["geometry"] != g):
             s = self._state = {**new_state(g.width, g.height), "geometry": g}
         n = len(chunk)
-        score = np.zeros(n if want_score else 0, np.float64)
-        feats = features if features is not None else np.zeros((0, N_FEATURES))
+        score = np.zeros(n, np.float64) if want_score else _NO_SCORE
+        feats = features if features is not None else _NO_FEATURES
         w1, b1, w2, b2 = self._weights
         kernel = feature_kernel(self._model.n_hidden, want_score, features is not None, not codes.any())
         i = 0
@@ -91,3 +91,7 @@ class LearnedFilter(InPlaceClassifier):
         out = np.zeros((len(chunk), N_FEATURES))
         self._run(chunk, codes, want_score=False, features=out)
         return out
+
+
+_NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without scores or features never touch these
+_NO_FEATURES = np.zeros((0, N_FEATURES), np.float64)
