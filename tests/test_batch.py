@@ -308,3 +308,31 @@ def test_eval_many_gives_the_rows_of_the_one_process_eval_and_a_rerun_skips(clie
     assert "0 done, 3 skipped" in capsys.readouterr().out
     assert main(["eval", str(dataset / "synthetic"), "--out", str(out), "--methods", "learned", "--quiet"]) == 2
     assert "leave-one-recording-out" in capsys.readouterr().err
+
+
+def test_recordings_of_one_name_in_two_formats_get_an_output_each(tmp_path):
+    """A folder with rec.aedat4 and rec.npy (tonic's datasets ship both) was refused: both went to rec.mcap.
+    Now each keeps its extension in its output's name, whichever way the command line names them."""
+    data = tmp_path / "data"
+    (data / "sub").mkdir(parents=True)
+    for name in ("rec.aedat4", "rec.npy", "other.npz", "sub/rec.npz"):
+        (data / name).write_bytes(b"x")
+    want = {"rec.aedat4.mcap", "rec.npy.mcap", "other.mcap", "sub/rec.mcap"}
+    got = {os.path.relpath(t.out, tmp_path / "out") for t in batch.plan([str(data)], tmp_path / "out", ".mcap")}
+    assert got == want
+    globbed = batch.plan([str(data / "rec.npy"), str(data / "*.aedat4")], tmp_path / "out", ".frames.json")
+    assert sorted(Path(t.out).name for t in globbed) == ["rec.aedat4.frames.json", "rec.npy.frames.json"]
+
+
+def test_tonics_aedat4_and_npy_of_one_recording_both_convert(client, real_data, tmp_path, capsys):
+    data = tmp_path / "tonic"
+    data.mkdir()
+    for ext in ("aedat4", "npy"):
+        shutil.copy(real_data / f"dvxplorer_320x240_tonic.{ext}", data)
+    out = tmp_path / "out"
+    assert main(["convert", str(data), str(out), "--to", "npz", "--scheduler", client.scheduler.address,
+                 "--quiet"]) == 0
+    assert "2 done, 0 skipped" in capsys.readouterr().out
+    for ext in ("aedat4", "npy"):
+        rec = data / f"dvxplorer_320x240_tonic.{ext}"
+        assert len(events_of(out / f"{rec.name}.npz")["t"]) == len(events_of(rec)["t"]) > 1000
