@@ -188,19 +188,14 @@ class RerunOutput:
 
     file: _RrdFile | None = None
 
-    def finish(self, interrupted: bool = False) -> str | None:
+    def finish(self) -> None:
         """Flush and detach the SDK (the file gets its footer and is put in place; a viewer or server keeps
-        the data). `interrupted` (Ctrl-C in `replay --save`): the file, whole up to there, is set aside as
-        STEM.partial.rrd instead, an older file at the target left as it was. Returns where the file is."""
+        the data)."""
         with self.guard():
             self.rec.flush()
             self.rec.disconnect()
-        if self.file is None:
-            return None
-        if interrupted:
-            return str(self.file.output.set_aside())
-        self.file.commit()
-        return str(self.file.output.target)
+        if self.file is not None:
+            self.file.commit()
 
     @contextlib.contextmanager
     def guard(self):

@@ -148,6 +148,25 @@ def test_dc_kernel_matches_brute_force(seed, n, params):
                              NoiseClass.HOT_PIXEL)
 
 
+@given(st.integers(0, 2**32), st.integers(0, 250), density_params, dc_params)
+def test_prefetching_kernels_match_brute_force(seed, n, coarse, fine):
+    """Over a map larger than the L2 cache (`FAR_BYTES`, here 0) the kernels prefetch: every variant
+    (scored, class-only, after an earlier stage) still matches the references."""
+    from evstream.denoise import density, timeseries
+
+    saved = density.FAR_BYTES, timeseries.FAR_BYTES
+    density.FAR_BYTES = timeseries.FAR_BYTES = 0
+    try:
+        test_density_kernel_matches_brute_force.hypothesis.inner_test(seed, n, coarse)
+        test_dc_kernel_matches_brute_force.hypothesis.inner_test(seed, n, fine)
+        d, f = DensityFilter(**coarse), TimeSeriesFilter(**fine)
+        d(random_stream(seed, 3, G))
+        f(random_stream(seed, 3, G))
+        assert d._far and f._options[-1]
+    finally:
+        density.FAR_BYTES, timeseries.FAR_BYTES = saved
+
+
 def _check_unscored_variants(make, s, seed, keep_of, noise_code):
     """The kernel variants compiled without the score (`classify`, `stage(chunk)`) and for chunks where
     an earlier stage already classed some events noise, each against the brute-force reference

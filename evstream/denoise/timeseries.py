@@ -34,15 +34,19 @@ from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
 from .common import is_int
+from .prefetch import FAR_BYTES, prefetch
 from .rowsum import MAX_RADIUS_PX, box_area, column_sum, padded_map, row_add
 
 DIFFERENCE, RATIO = 0, 1
+PREFETCH_EVENTS = 8  # how far ahead `far` kernels prefetch (at 1280×720: fine alone 20.9 -> 16.1 ns/event)
 
 
 @functools.cache
 def dc_kernel(options, want_score):
-    """The kernel compiled for one configuration, `options` = (radius, form) (compile-time constants)."""
-    radius, form = options
+    """The kernel compiled for one configuration, `options` = (radius, form, far) (compile-time constants;
+    `far`: the maps are larger than the L2 cache, so each event prefetches the cells of the live event
+    PREFETCH_EVENTS ahead)."""
+    radius, form, far = options
     L = 2 * radius + 1
 
     @njit(cache=True, nogil=True)
@@ -70,6 +74,7 @@ def dc_kernel(options, want_score):
         bin_start = b * bin_us  # [bin_start, bin_end) is bin b
         bin_end = bin_start + bin_us
         b_slot = b % n_bins  # per_bin[b_slot] counts bin b's activations
+        in_bin = per_bin[ix(b_slot)]
         k = cursor[1]
         if k < 0:  # the events still SIGNAL, gathered without a branch: skipping the others in the
             k = 0  # loop below mispredicts on every other event
@@ -84,9 +89,16 @@ def dc_kernel(options, want_score):
                 break
             while j < stop:
                 i = live[ix(j)]
+                if far:
+                    a = live[ix(min(j + PREFETCH_EVENTS, k - 1))]
+                    q = (np.intp(y[ix(a)]) + radius) * padded_width + np.intp(x[ix(a)]) + radius
+                    prefetch(pixel, q)
+                    for r in range(-radius, radius + 1):
+                        prefetch(rowsum, q + r * padded_width)
                 j += 1
                 ti = t[ix(i)]
                 if ti >= bin_end or ti < bin_start:  # a division (and expiry) only on a new bin
+                    per_bin[ix(b_slot)] = in_bin
                     nb = ti // bin_us
                     for old in range(max(b - n_bins + 1, nb - 2 * n_bins + 1), nb - n_bins + 1):
                         k_old = old % n_bins  # bins b - n + 1 .. nb - n leave the window
@@ -99,6 +111,7 @@ def dc_kernel(options, want_score):
                         per_bin[ix(k_old)] = 0
                     b = nb
                     b_slot = b % n_bins
+                    in_bin = per_bin[ix(b_slot)]
                     bin_start = b * bin_us
                     bin_end = bin_start + bin_us
                 xi = np.intp(x[ix(i)])
@@ -112,13 +125,15 @@ def dc_kernel(options, want_score):
                 b8 = b & 0xFF
                 new = ((cell >> 8) != b8) | ((cell & 0xFF) == 0)
                 own = (cell & 0xFF) + new  # <= n: bin b - n left the window before bin b began
+                # the neighbourhood read before this event's own update (no store to forward from):
+                # the update adds `new` to one cell of this column
+                active = column_sum(rowsum, yi * padded_width + xi + radius, padded_width, L) + new - own
                 pixel[ix(c)] = (b8 << 8) | own
                 row_add(rowsum, pos, new, L)  # branchless: delta 0 when the bin was already active
                 slot = (head + size) & mask
                 fifo_pos[ix(slot)] = pos
-                per_bin[ix(b_slot)] += new
+                in_bin += new  # per_bin[b_slot], kept in a register (stored back on a new bin, at the end)
                 size += new
-                active = column_sum(rowsum, yi * padded_width + xi + radius, padded_width, L) - own
                 n_nb = box_area(xi, yi, radius, width, height) - 1
                 # decisions in whole bins (exact): DC_m - mean > λ  <=>  own·n_nb - active > λ·n·n_nb
                 if form == DIFFERENCE:
@@ -133,6 +148,7 @@ def dc_kernel(options, want_score):
                         out_score[ix(i)] = dc - mean
                     else:
                         out_score[ix(i)] = dc / mean if mean > 0 else np.inf
+        per_bin[ix(b_slot)] = in_bin
         fifo_state[0] = head
         fifo_state[1] = size
         fifo_state[2] = b
@@ -222,7 +238,8 @@ class TimeSeriesFilter(InPlaceClassifier):
     def _bind(self) -> None:
         """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
         s, g, r = self._state, self._state["geometry"], self.radius_px
-        self._options = (r, DIFFERENCE if self.form == "difference" else RATIO)
+        far = s["pixel"].nbytes + s["rowsum"].nbytes > FAR_BYTES
+        self._options = (r, DIFFERENCE if self.form == "difference" else RATIO, far)
         self._args = (int(self.noise_class), s["pixel"], s["rowsum"], g.width + 2 * r, s["fifo_pos"], s["per_bin"],
                       s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), g.width, g.height)
 
