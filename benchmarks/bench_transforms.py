@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from evstream.sources import open_source, prophesee_raw
+from evstream.sources import native, open_source, prophesee_raw
 
 from evstream.pipeline import build
 from evstream.testing import split
@@ -122,6 +122,8 @@ def seek_table(rounds: int = 3) -> None:
             prophesee_raw.save(files[f"RAW {version.upper()}"], stream, version=version)
         files[".npy"] = Path(folder) / "r.npy"
         np.save(files[".npy"], stream.to_structured())
+        files["native .npz"] = Path(folder) / "r.npz"  # deflated, with its seek index (native.save)
+        native.save(files["native .npz"], stream)
 
         def read(path, seek):
             source = open_source(path, geometry=stream.geometry)  # a .npy has none: it would be fitted to every event
@@ -138,7 +140,7 @@ def seek_table(rounds: int = 3) -> None:
               "CPU ms:")
         for name in files:
             a, b = best[f"{name} seek"], best[f"{name} decode+drop"]
-            print(f"  {name:<10} seek {1e3 * a:8.1f}   decode+drop {1e3 * b:8.1f}   {b / a:5.1f}x faster")
+            print(f"  {name:<12} seek {1e3 * a:8.1f}   decode+drop {1e3 * b:8.1f}   {b / a:5.1f}x faster")
 
 
 if __name__ == "__main__":

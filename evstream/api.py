@@ -37,12 +37,15 @@ def open(path, *, geometry=None, timestamps: str | None = None,  # noqa: A001 - 
     format's); `start_us` <= t < `end_us` keeps a time range (either may be None: open on that side)."""
     from evstream.sources import open_source
 
+    from .safe_write import reading
+
     options: dict[str, Any] = {}
     if geometry is not None:
         options["geometry"] = as_geometry(geometry)
     if timestamps is not None:
         options["timestamps"] = timestamps
     source = open_source(path, **options)
+    reading(source, path)  # `open_sink` will not write over it while it is alive
     if start_us is None and end_us is None:
         return source
     from .transforms import TimeRangeSource

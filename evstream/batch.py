@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["RECORDING_SUFFIXES", "Task", "TaskResult", "plan", "run_many", "start_client", "up_to_date"]
+__all__ = ["RECORDING_SUFFIXES", "Task", "TaskResult", "out_name", "plan", "run_many", "start_client", "up_to_date"]
 
 # What a folder walk takes as a recording (open_source reads by content; a walk needs a name filter).
 RECORDING_SUFFIXES = (".npz", ".npy", ".h5", ".hdf5", ".aedat4", ".aedat", ".mat", ".mcap", ".dat", ".raw",
@@ -59,10 +59,10 @@ def _is_recording(path: Path) -> bool:
 def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
     """One task per recording: a file goes to OUT/NAME, a folder's recordings (walked, sorted) to
     OUT/PATH-BELOW-THE-FOLDER, a glob's matches to OUT/PATH-BELOW-THE-GLOB'S-FIXED-PART; each with its
-    suffix replaced by `suffix` (".mcap"). A walk or a glob passes over OUT (which may lie in the input
-    tree): an earlier run's outputs are not recordings to process again (they would nest OUT/OUT/... one
-    level deeper each run). Raises ValueError for an input that matches nothing, or when two recordings
-    would write the same output."""
+    suffix replaced by `suffix` (".mcap"; `out_name`: rec.aedat4 beside rec.npy keeps its extension). A
+    walk or a glob passes over OUT (which may lie in the input tree): an earlier run's outputs are not
+    recordings to process again (they would nest OUT/OUT/... one level deeper each run). Raises
+    ValueError for an input that matches nothing, or when two recordings would write the same output."""
     out_dir = Path(out_dir)
     out_real = os.path.realpath(out_dir)
 
@@ -97,7 +97,7 @@ def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
             pairs = [(given, Path(given.name))]
         else:
             raise ValueError(f"{text}: no such file or folder")
-        tasks += [Task(str(src), str(out_dir / rel.with_suffix(suffix))) for src, rel in pairs]
+        tasks += [Task(str(src), str(out_dir / out_name(src, rel, suffix))) for src, rel in pairs]
     seen: dict[str, str] = {}
     for t in tasks:
         key = os.path.normpath(os.path.abspath(t.out))
@@ -106,6 +106,27 @@ def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
         seen[key] = t.source
     unique = {os.path.normpath(os.path.abspath(t.out)): t for t in tasks}  # a recording named twice: once
     return list(unique.values())
+
+
+def out_name(source: Path, rel: Path, suffix: str) -> Path:
+    """A recording's output path below OUT: its path with its extension replaced by `suffix` (rec.aedat4 ->
+    rec.mcap), except when its folder holds another recording of the same name with another extension
+    (tonic-style datasets keep rec.aedat4 beside rec.npy): then each keeps its extension before `suffix`
+    (rec.aedat4.mcap, rec.npy.mcap), so neither is refused and the names do not depend on which of them
+    a command line named."""
+    if _has_namesake(source):
+        return rel.with_name(rel.name + suffix)
+    return rel.with_suffix(suffix)
+
+
+def _has_namesake(source: Path) -> bool:
+    stem = source.stem.lower()
+    try:
+        names = os.listdir(source.parent if str(source.parent) else ".")
+    except OSError:
+        return False
+    return any(name.lower() != source.name.lower() and Path(name).stem.lower() == stem
+               and _is_recording(source.parent / name) for name in names)
 
 
 def up_to_date(task: Task) -> bool:

@@ -11,16 +11,20 @@
 - A full disk is one error naming the target: "no space left on the device".
 
 A killed process leaves its temporary where it was (`TARGET.part`): what it wrote so far, the target
-untouched.
+untouched. A run cut short on purpose (Ctrl-C in a file command) closes its output properly and sets it
+aside (`set_aside`) as `STEM.partial.EXT` (`STEM.partial.N.EXT` when taken): readable by every tool that
+reads EXT, named so that nobody takes it for the whole output; the target is left as it was, or absent.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import weakref
 from pathlib import Path
 
-__all__ = ["AtomicOutput", "OutputIsInput", "check_not_input", "is_no_space", "no_space_error"]
+__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "check_not_input", "is_no_space",
+           "no_space_error", "partial_name", "reading"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
@@ -47,6 +51,25 @@ def check_not_input(target, inputs, flag: str = "") -> None:
         if path is not None and _identity(path) == mine:
             raise OutputIsInput(f"{flag}{os.fspath(target)}: that is the input recording; "
                                 "writing there would destroy it")
+
+
+# Recordings this process has open for reading (`evstream.open`), weakly: a source that is gone no longer
+# counts. `evstream.open_sink` refuses to write over any of them, so a script cannot destroy the recording
+# it reads, whether or not it says what it reads.
+_READING: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def reading(source, path) -> None:
+    """Note that `source` (an object alive while it is being read) reads the file `path`."""
+    try:
+        _READING[source] = os.fspath(path)
+    except TypeError:  # an object that cannot be weakly referenced: not tracked
+        pass
+
+
+def being_read() -> list[str]:
+    """The files of the sources opened with `evstream.open` that are still alive in this process."""
+    return list(_READING.values())
 
 
 def is_no_space(e: BaseException) -> bool:
@@ -79,6 +102,14 @@ def _create_part(target: Path) -> Path:
         os.close(fd)
         return part
     raise OSError(f"{target}: {_MAX_PART_NAMES} temporary files {target.name}.N.part are in the way; remove them")
+
+
+def partial_name(target, n: int = 0) -> Path:
+    """Where a run cut short keeps its output: `STEM.partial.EXT` (n > 0: `STEM.partial.N.EXT`), so that the
+    extension still says the format (viewers pick their loader by it) and the name says it is not whole."""
+    target = Path(os.fspath(target))
+    middle = ".partial" if n == 0 else f".partial.{n}"
+    return target.with_name(f"{target.stem}{middle}{target.suffix}")
 
 
 class AtomicOutput:
@@ -123,6 +154,28 @@ class AtomicOutput:
         self.done = True
         return self.target
 
+    def set_aside(self) -> Path:
+        """The run was cut short on purpose (Ctrl-C) and its output closed whole up to there: keep it under a
+        new name, `partial_name(target)` (created by a hard link, so never over an existing file), and leave
+        the target as it was. Where hard links are not possible the output stays at `part`. Returns where
+        it is."""
+        if self.done:
+            return self.kept or self.target
+        self.done = True
+        self.kept = self.part
+        for n in range(_MAX_PART_NAMES):
+            name = partial_name(self.target, n)
+            try:
+                os.link(self.part, name)
+            except FileExistsError:
+                continue
+            except OSError:  # no hard links here (some network or FAT file systems): keep TARGET.part
+                return self.part
+            self.part.unlink(missing_ok=True)
+            self.kept = name
+            break
+        return self.kept
+
     def discard(self, keep: bool | None = None) -> Path | None:
         """Remove the temporary (or keep it when `keep`, default `keep_partial`, and it holds bytes);
         returns the kept path or None. The target is not touched."""
@@ -147,7 +200,9 @@ class AtomicOutput:
             self.discard(keep=False)
             return no_space_error(self.target)
         kept = self.discard()
-        if kept is not None and len(e.args) == 1 and isinstance(e.args[0], str) and isinstance(e, Exception):
+        if kept is not None and isinstance(e, KeyboardInterrupt) and not e.args:  # a second Ctrl-C
+            e.args = (f"{self.target} left as it was; the output up to there is in {kept}",)
+        elif kept is not None and len(e.args) == 1 and isinstance(e.args[0], str) and isinstance(e, Exception):
             e.args = (f"{e.args[0]} ({self.target} left as it was; the output up to there is in {kept})",)
         return e
 
@@ -161,4 +216,83 @@ class AtomicOutput:
         raised = self.failed(e)
         if raised is not e:
             raise raised from None
+        return False
+
+
+class AtomicFolder:
+    """A folder of outputs (`frames --out DIR`: one file per frame) written whole or not at all: the files
+    go to a new folder beside the target (`DIR.part/`, `DIR.N.part/`, created exclusively) and are moved
+    into DIR only when the run succeeded. There they replace the files of the same kind from an earlier
+    run (`replaces`, e.g. "frame_*.png": no stale frames past the new last one); other files in DIR are
+    not touched. A failed run removes its folder: DIR as it was, and no DIR at all if there was none.
+
+        with AtomicFolder("out/frames", replaces=("frame_*.png",)) as part:
+            write_frames_into(part)
+    """
+
+    def __init__(self, target, replaces=()):
+        self.target = Path(os.fspath(target))
+        self.replaces = tuple(replaces)
+        if self.target.exists() and not self.target.is_dir():
+            raise NotADirectoryError(f"{self.target}: is a file, not a folder")
+        self.target.parent.mkdir(parents=True, exist_ok=True)
+        for n in range(_MAX_PART_NAMES):
+            part = self.target.with_name(f"{self.target.name}.part" if n == 0 else f"{self.target.name}.{n}.part")
+            try:
+                part.mkdir()
+            except FileExistsError:
+                continue
+            self.part = part
+            break
+        else:
+            raise OSError(f"{self.target}: {_MAX_PART_NAMES} temporary folders {self.target.name}.N.part are in the "
+                          "way; remove them")
+        self.done = False
+
+    def commit(self) -> Path:
+        """Move every file written into the target (folders as they were laid out), remove the files of
+        `replaces` the run did not write again, then the temporary folder."""
+        if self.done:
+            return self.target
+        import shutil
+
+        try:
+            written: dict[Path, set[str]] = {}
+            for folder, _, files in os.walk(self.part):
+                rel = Path(folder).relative_to(self.part)
+                dest = self.target / rel
+                dest.mkdir(parents=True, exist_ok=True)
+                written[dest] = set(files)
+                for name in files:
+                    os.replace(Path(folder) / name, dest / name)
+            for dest, names in written.items():
+                for pattern in self.replaces:
+                    for old in dest.glob(pattern):
+                        if old.name not in names and old.is_file():
+                            old.unlink()
+        except OSError as e:
+            if is_no_space(e):
+                raise no_space_error(self.target) from None
+            raise
+        finally:
+            shutil.rmtree(self.part, ignore_errors=True)
+            self.done = True
+        return self.target
+
+    def discard(self) -> None:
+        """Remove the temporary folder and what is in it; the target is not touched."""
+        import shutil
+
+        if not self.done:
+            shutil.rmtree(self.part, ignore_errors=True)
+            self.done = True
+
+    def __enter__(self) -> Path:
+        return self.part
+
+    def __exit__(self, kind, e, tb) -> bool:
+        if e is None:
+            self.commit()
+        else:
+            self.discard()
         return False

@@ -17,6 +17,7 @@ import contextlib
 import os
 import queue
 import threading
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -28,27 +29,37 @@ from .threads import ReadAhead, enabled
 FILE_FORMATS = {".npz": "native", ".raw": "evt", ".h5": "hdf5", ".hdf5": "hdf5"}
 
 
-def open_sink(out, *, geometry=None, keep_noise: bool = False, framer: str | None = None, **options) -> SinkWriter:
+def open_sink(out, *, geometry=None, keep_noise: bool = False, framer: str | None = None, source=None, inputs=(),
+              **options) -> SinkWriter:
     """A sink for `out`, to `write(batch_or_chunk)` into and `close()` (or use `with`).
 
     `keep_noise`: also write the events not classed SIGNAL (MCAP: one topic per class; files: every
     event, with its class where the format has a place for it). `framer`: the framer's kind, for the
-    Rerun view. Other options go to the sink: MCAP `camera=`, `frames=`, `points=`, `metadata=`...;
-    Rerun `point_budget_hz=`, `slab_ms=`; RAW `evt=3|2`; native `meta=`.
+    Rerun view. `source`: the recording being read (its sensor size is the default `geometry`). `out` is
+    never a file being read: not `source`'s, not one in `inputs` (paths or opened recordings), not any
+    recording `evstream.open` has open in this process (by file identity: links too; `OutputIsInput`).
+    Other options go to the sink: MCAP `camera=`, `frames=`, `points=`, `metadata=`...; Rerun
+    `point_budget_hz=`, `slab_ms=`; RAW `evt=3|2`; native `meta=`. A sink never closed is not put in
+    place: when it is garbage-collected (or the script ends) its temporary is removed, with a warning.
     """
     from .api import as_geometry
+    from .safe_write import being_read
 
+    if geometry is None and source is not None:
+        geometry = source.geometry
     geometry = as_geometry(geometry) if geometry is not None else None
+    read = [_input_path(i) for i in (*((source,) if source is not None else ()), *inputs)]
+    read = [p for p in read if p is not None] + being_read()
     name = os.fspath(out)
     if name.startswith(("rerun+http://", "rerun+https://")) or name.endswith(".rrd"):
-        return _rerun(name, geometry, framer, options)
+        return _rerun(name, geometry, framer, options, read)
     suffix = Path(name).suffix.lower()
     if suffix == ".mcap":
         from evstream.sinks.mcap_sink import McapSink
 
         Path(name).parent.mkdir(parents=True, exist_ok=True)
         options.setdefault("frames", False)
-        output = AtomicOutput(name)
+        output = AtomicOutput(name, read)
         try:
             sink = McapSink(str(output.part), keep_noise=keep_noise, geometry=geometry, **options)
         except BaseException:
@@ -56,18 +67,28 @@ def open_sink(out, *, geometry=None, keep_noise: bool = False, framer: str | Non
             raise
         return SinkWriter(sink, output=output)
     if suffix in FILE_FORMATS:
-        return SinkWriter(FileSink(name, geometry=geometry, keep_noise=keep_noise, **options))
+        return SinkWriter(FileSink(name, geometry=geometry, keep_noise=keep_noise, inputs=read, **options))
     raise ValueError(f"{name}: no sink for that name; outputs are .mcap, .rrd (or rerun+http://HOST:PORT/proxy),"
                      " .npz (native), .raw (EVT3/EVT2), .h5 (HDF5)")
 
 
-def _rerun(name: str, geometry, framer, options) -> SinkWriter:
+def _input_path(given) -> str | None:
+    """A path, or an opened recording's file (a time-range view's underlying source's)."""
+    if isinstance(given, (str, os.PathLike)):
+        return os.fspath(given)
+    while given is not None and getattr(given, "path", None) is None and hasattr(given, "source"):
+        given = given.source
+    path = getattr(given, "path", None)
+    return os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
+
+
+def _rerun(name: str, geometry, framer, options, inputs=()) -> SinkWriter:
     from evstream.sinks.rerun_sink import RerunSink
     from evstream.sinks.rerun_viewer import open_output
 
     if geometry is None:
         raise ValueError(f"{name}: the Rerun view needs the sensor size: pass geometry=")
-    output = None if "://" in name else AtomicOutput(name)
+    output = None if "://" in name else AtomicOutput(name, inputs)
     try:
         out = open_output(save=str(output.part) if output else None, connect=None if output else name)
     except BaseException:
@@ -81,19 +102,23 @@ def _rerun(name: str, geometry, framer, options) -> SinkWriter:
         if output is not None:
             output.discard()
         raise
-    return SinkWriter(sink, after_close=lambda: (out.finish(), out.stop()), output=output)
+    return SinkWriter(sink, after_close=lambda: (out.finish(), out.stop()), output=output,
+                      abandon=lambda: (out.rec.disconnect(), out.stop()))
 
 
 class SinkWriter:
     """A sink fed from a loop: `write` takes a pipeline's `Batch` or a bare `EventChunk` (its events count
     as classified, or all SIGNAL when unclassified); `close` gives the sink the run's statistics."""
 
-    def __init__(self, sink, after_close=None, output: AtomicOutput | None = None):
+    def __init__(self, sink, after_close=None, output: AtomicOutput | None = None, abandon=None):
         self.sink = sink
         self.stats = RunStats()
         self._after_close = after_close
         self._output = output  # committed once closed: a failed run leaves the old OUT
         self._closed = False
+        # never closed (no `with`, no close()): when this writer is collected or the process ends, its
+        # temporary is removed and a warning says so; the target stays as it was
+        self._unclosed = weakref.finalize(self, _never_closed, sink, output, abandon, _target_of(sink, output))
 
     def write(self, item: Batch | EventChunk) -> None:
         if isinstance(item, EventChunk):
@@ -107,6 +132,7 @@ class SinkWriter:
         if self._closed:
             return
         self._closed = True
+        self._unclosed.detach()
         try:
             self.sink.close(self.stats)
         finally:
@@ -122,6 +148,7 @@ class SinkWriter:
         if exc is None:
             self.close()
             return
+        self._unclosed.detach()
         if isinstance(self.sink, FileSink):  # a failed run leaves what was there before
             self.sink.abandon()
         output, self._output = self._output, None
@@ -132,6 +159,33 @@ class SinkWriter:
         finally:
             if output is not None:
                 output.discard()
+
+
+def _target_of(sink, output: AtomicOutput | None) -> str:
+    if output is not None:
+        return str(output.target)
+    return str(getattr(sink, "path", None) or "the sink's output")
+
+
+def _never_closed(sink, output: AtomicOutput | None, abandon, target: str) -> None:
+    """A SinkWriter collected (or left at exit) without `close()`: nothing says its output is whole, so it is
+    not put in place; its temporary is removed and the user told why."""
+    import warnings
+
+    from .sources._base import EventWarning
+
+    try:
+        if isinstance(sink, FileSink):
+            sink.abandon()
+        elif hasattr(sink, "abandon"):
+            sink.abandon()
+        if abandon is not None:
+            abandon()
+    finally:
+        if output is not None:
+            output.discard(keep=False)
+    warnings.warn(f"{target}: open_sink(...) was never closed (call close() or use `with`), so it was not "
+                  "written; its temporary file is removed", EventWarning, stacklevel=1)
 
 
 class FileSink:
@@ -282,9 +336,10 @@ def archive(recording, out, *, pipeline: Pipeline | None = None, keep_noise: boo
     `path` names its file, for the provenance and the check that the archive is not written onto it).
     `pipeline`: the stages (and framer) to run; default the paper's cascade; `frames` without a framer
     adds a fixed-window one. `speed`: 1 = real time, 0 = as fast as possible. `on_batch(batch)` after
-    each batch (progress); `stop()` polled between chunks ends the run early, the archive complete up to
-    there. `command`: the command line, kept in the provenance. The archive is written beside OUT and
-    renamed when whole (flushed every `flush_s`: a crash loses at most that), never onto the recording."""
+    each batch (progress); `stop()` polled between chunks ends the run early: the archive of the events so
+    far is closed whole but kept as OUT-STEM.partial.mcap (the summary's `mcap`, with `partial` true), OUT
+    left as it was. `command`: the command line, kept in the provenance. The archive is written beside OUT
+    and renamed when whole (flushed every `flush_s`: a crash loses at most that), never onto the recording."""
     from evstream.sinks.mcap_sink import McapSink
 
     from . import api, threads
@@ -307,8 +362,15 @@ def archive(recording, out, *, pipeline: Pipeline | None = None, keep_noise: boo
                     frames=pipeline.framer is not None, frame_format=frame_format, points=points,
                     packet_us=packet_us, flush_s=flush_s, metadata=provenance,
                     geometry=pipeline.out_geometry(source.geometry), inputs=[path] if path else [])
-    stats = pipeline.run(paced(source, speed), [sink], on_batch=on_batch, threads=threads.enabled(), stop=stop)
-    return {**stats.as_dict(), "mcap": os.fspath(out), "packets": sink.packets, "frames_written": sink.frames_written}
+    def stopped() -> bool:  # cut short: the archive so far is closed whole but kept aside, OUT left as it was
+        if stop is not None and stop():
+            sink.interrupt()
+            return True
+        return False
+
+    stats = pipeline.run(paced(source, speed), [sink], on_batch=on_batch, threads=threads.enabled(), stop=stopped)
+    return {**stats.as_dict(), "mcap": sink.written, "packets": sink.packets, "frames_written": sink.frames_written,
+            "partial": sink.interrupted}
 
 
 def _version() -> str:

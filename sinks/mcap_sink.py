@@ -292,6 +292,8 @@ class McapSink:
         # beside the target until whole (`safe_write`); an input given as the target is refused here
         self._output = AtomicOutput(self.path, inputs, keep_partial=True)
         self.part = str(self._output.part)
+        self.interrupted = False  # set by `interrupt`: closed whole, but set aside, not put in place
+        self.written: str | None = None  # where the archive is once closed (path, or the partial file)
         self._file = open(self.part, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._file, chunk_size=_NEVER, compression=CompressionType.ZSTD)
         ros2_only = not points and (not frames or frame_format == "ros2")
@@ -487,7 +489,9 @@ class McapSink:
     # -- closing -----------------------------------------------------------------------------------------
     def close(self, stats: RunStats | None = None) -> None:
         """Write what is still waiting (the open cells), the statistics, the summary and the footer, and put
-        the archive in place (renamed onto `path`; a full disk: one error naming it, nothing left there)."""
+        the archive in place (renamed onto `path`; a full disk: one error naming it, nothing left there).
+        After `interrupt`, the archive is closed as well but kept as PATH-STEM.partial.mcap instead,
+        `path` left as it was (`written` says where)."""
         if self._closed:
             return
         try:
@@ -497,7 +501,25 @@ class McapSink:
             if raised is not e:
                 raise raised from None
             raise
+        if self.interrupted:
+            self.written = str(self._output.set_aside())
+            return
         self._output.commit()
+        self.written = str(self.path)
+
+    def abandon(self) -> None:
+        """Drop the archive unfinished (a sink never closed): its file closed and removed, `path` untouched."""
+        self._closed = True
+        try:
+            self._file.close()
+        finally:
+            self._output.discard(keep=False)
+
+    def interrupt(self) -> None:
+        """The run is being cut short (Ctrl-C in a file command): `close` still writes a whole archive of
+        what came, but sets it aside (`safe_write.AtomicOutput.set_aside`) rather than replacing `path`.
+        A live archive, which ends by Ctrl-C, does not call this."""
+        self.interrupted = True
 
     def fail(self, stats: RunStats | None, error: BaseException) -> None:
         """After a failed run: the archive closed (readable up to the failure) but not put in place; the

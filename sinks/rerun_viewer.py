@@ -188,14 +188,19 @@ class RerunOutput:
 
     file: _RrdFile | None = None
 
-    def finish(self) -> None:
+    def finish(self, interrupted: bool = False) -> str | None:
         """Flush and detach the SDK (the file gets its footer and is put in place; a viewer or server keeps
-        the data)."""
+        the data). `interrupted` (Ctrl-C in `replay --save`): the file, whole up to there, is set aside as
+        STEM.partial.rrd instead, an older file at the target left as it was. Returns where the file is."""
         with self.guard():
             self.rec.flush()
             self.rec.disconnect()
-        if self.file is not None:
-            self.file.commit()
+        if self.file is None:
+            return None
+        if interrupted:
+            return str(self.file.output.set_aside())
+        self.file.commit()
+        return str(self.file.output.target)
 
     @contextlib.contextmanager
     def guard(self):

@@ -8,6 +8,14 @@ Members stream straight from the zip (`npy_stream`): a stored one from its bytes
 zlib-ng's incremental inflater, each checked against its CRC by zlib-ng's SIMD CRC32, in blocks of
 `BLOCK_EVENTS` events, so memory does not grow with the recording, and a member may not claim more
 than its bytes can hold.
+
+Seeking (`set_time_range`, for --start-us): `save` flushes each event column's deflate stream every
+`SEEK_BLOCK_EVENTS` events (`npz_writer`: a raw inflater can start there) and adds a small index
+member, `seek`: per block its first row, first and last time, and per column where the block starts
+in the compressed bytes and its CRC-32. A reader bisects the index's last times and inflates every
+column from the block holding the first event at or after the start; the blocks it reads are checked
+against their CRCs, the ones before are not read. Files without the index (written before it, or by
+other tools, or stored uncompressed) are read from the start.
 """
 
 from __future__ import annotations
@@ -24,13 +32,15 @@ from zlib_ng import zlib_ng
 
 from evstream.events import EventChunk, EventError, Geometry, Validator, concat
 
-from . import npy_stream
+from . import npy_stream, npz_writer
 from ._base import MAX_SENSOR_SIDE, check_not_shrunk
 
 NAME = "native (.npz)"
 FORMAT = "native"
 DEFAULT_CHUNK_EVENTS = 50_000
 BLOCK_EVENTS = 1 << 16  # events inflated at a time per column
+SEEK_BLOCK_EVENTS = BLOCK_EVENTS  # events between the flush points a seek can start at (written files)
+COLUMNS = ("t", "x", "y", "p", "label", "cls")  # the per-event members, in the order written
 # What reading a damaged file raises (a bad CRC, a broken deflate stream, a cut member).
 ZIP_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, zlib_ng.error)
 
@@ -64,8 +74,33 @@ def save(path: str | os.PathLike, events: EventChunk | Iterable[EventChunk], met
         if getattr(chunk, name) is not None:
             arrays[name] = getattr(chunk, name)
     with builtins.open(path, "wb") as f:
-        (np.savez_compressed if compress else np.savez)(f, **arrays)
+        if not compress:
+            np.savez(f, **arrays)
+            return chunk
+        w = npz_writer.NpzWriter(f)
+        blocks = {name: w.add(name, arrays[name], SEEK_BLOCK_EVENTS) for name in COLUMNS if name in arrays}
+        for name in ("width", "height", "meta"):
+            w.add(name, arrays[name])
+        t = chunk.t
+        if len(t) and bool(np.all(t[1:] >= t[:-1])):  # a seek by time needs time order
+            w.add("seek", seek_index(t, blocks))
+        w.close()
     return chunk
+
+
+def seek_index(t: np.ndarray, blocks: dict[str, tuple[list[int], list[int]]]) -> np.ndarray:
+    """The `seek` member: per block of SEEK_BLOCK_EVENTS events its first row, its first and last time
+    (`t` in time order), and per column (`blocks`: name -> each block's compressed start and CRC-32)."""
+    n, b = len(t), SEEK_BLOCK_EVENTS
+    rows = np.arange(0, n, b, dtype=np.int64)
+    dtype = [("row", "<i8"), ("t_min", "<i8"), ("t_max", "<i8")]
+    for name in blocks:
+        dtype += [(f"{name}_at", "<i8"), (f"{name}_crc", "<u4")]
+    index = np.zeros(len(rows), dtype)
+    index["row"], index["t_min"], index["t_max"] = rows, t[rows], t[np.minimum(rows + b, n) - 1]
+    for name, (starts, crcs) in blocks.items():
+        index[f"{name}_at"], index[f"{name}_crc"] = starts, crcs
+    return index
 
 
 class NativeSource:
@@ -105,6 +140,8 @@ class NativeSource:
                 raise
             raise EventError(f"{self.path}: unreadable native file: {e}") from None
         self.fraction_read: float | None = None  # share of the events read so far
+        self._seek: tuple[int, np.ndarray] | None = None  # (block, index) reading starts at (set_time_range)
+        self._first_row = 0  # the row it starts at
 
     def info(self) -> dict:
         return {"format": self.format, "path": self.path, "meta": self.meta}
@@ -129,7 +166,7 @@ class NativeSource:
         return meta
 
     def _columns(self) -> dict[str, npy_stream.Member]:
-        cols = {k: self._member(k) for k in ("t", "x", "y", "p", *(["label"] if self.has_labels else []))}
+        cols = {k: self._member(k) for k in self._column_names()}
         for k, m in cols.items():
             if len(m.shape) != 1 or m.dtype.kind not in "iub":
                 raise ValueError(f"array {k!r}: {m.dtype} of shape {m.shape}, not one integer per event")
@@ -139,10 +176,67 @@ class NativeSource:
                 raise EventError(f"{self.path}: array {k!r} has {m.rows} entries, 't' has {n}")
         return cols
 
+    def set_time_range(self, start_us: int | None, end_us: int | None) -> bool:
+        """Start at the block holding the first event at or after `start_us`, found by bisection on the
+        `seek` index's last times; False (read from the start) without an index or when that is block 0."""
+        self._seek, self._first_row = None, 0
+        if start_us is None or "seek" not in self._infos:
+            return False
+        try:
+            index = self._member("seek").read(limit=self._infos["seek"].file_size)
+            self._check_index(index)
+        except ZIP_ERRORS as e:
+            if isinstance(e, EventError):
+                raise
+            raise EventError(f"{self.path}: unreadable native file: {e}") from None
+        k = int(np.searchsorted(index["t_max"], start_us, side="left"))  # every event before it is earlier
+        if k == 0:
+            return False
+        self._seek = (k, index)
+        self._first_row = int(index["row"][k]) if k < len(index) else self.n_events
+        return True
+
+    def _check_index(self, index: np.ndarray) -> None:
+        """What the seek relies on: a block per SEEK-sized run of rows, times in order, flush points inside
+        each column's bytes and rising (ValueError naming what is wrong)."""
+        names = index.dtype.names or ()
+        need = ["row", "t_min", "t_max"] + [f"{c}_{f}" for c in self._column_names() for f in ("at", "crc")]
+        missing = [k for k in need if k not in names]
+        if index.ndim != 1 or missing or not len(index):
+            raise ValueError(f"array 'seek': {index.dtype} of shape {index.shape} is not a seek index"
+                             + (f" (no {missing[0]})" if missing else ""))
+        n = self.n_events
+        row = index["row"]
+        step = int(row[1]) if len(row) > 1 else max(n, 1)
+        if step <= 0 or not np.array_equal(row, np.arange(len(row), dtype=np.int64) * step) or not (
+                (len(row) - 1) * step < max(n, 1) <= len(row) * step):
+            raise ValueError(f"array 'seek': its {len(row)} blocks do not cover the {n} events in equal runs")
+        t_min, t_max = index["t_min"], index["t_max"]
+        if np.any(t_min > t_max) or np.any(t_max[:-1] > t_min[1:]):
+            raise ValueError("array 'seek': its blocks' times are not in order")
+        for c in self._column_names():
+            at, size = index[f"{c}_at"], self._infos[c].compress_size
+            if at[0] != 0 or np.any(at[1:] <= at[:-1]) or at[-1] >= size:
+                raise ValueError(f"array 'seek': the blocks of {c!r} do not start inside its {size} bytes, rising")
+
+    def _column_names(self) -> tuple[str, ...]:
+        return ("t", "x", "y", "p", *(["label"] if self.has_labels else []))
+
     def _blocks(self) -> Iterator[dict]:
-        """Aligned pieces of every column, in order (members read once, in step)."""
+        """Aligned pieces of every column, in order (members read once, in step), from the block a time
+        range starts at."""
         try:  # members are read here, as the stream goes: a corrupt one shows only now
-            yield from npy_stream.lockstep(self._columns(), BLOCK_EVENTS)
+            cols = self._columns()
+            if self._seek is not None:
+                k, index = self._seek
+                if k == len(index):  # the range starts after the last event
+                    for m in cols.values():
+                        m.close()
+                    return
+                row, step = int(index["row"][k]), int(index["row"][1])
+                for name, m in cols.items():
+                    m.skip_to_block(row, int(index[f"{name}_at"][k]), index[f"{name}_crc"][k:], step)
+            yield from npy_stream.lockstep(cols, BLOCK_EVENTS)
         except ZIP_ERRORS as e:
             if isinstance(e, EventError):
                 raise
@@ -166,7 +260,7 @@ class NativeSource:
     def _chunks(self, blocks) -> Iterator[EventChunk]:
         check = Validator(self.geometry, self.path, self.timestamps)
         n = self.n_events
-        done = 0  # events handed out
+        done = self._first_row  # events handed out (or skipped by a seek)
         buf: dict[str, np.ndarray] | None = None  # events read, not yet handed out
         bin_end = None  # chunk_us: end of the current time bin (bins anchored at the first event)
 

@@ -106,11 +106,14 @@ class Member:
             raise ValueError(f"{self.where}: {info.compress_size} compressed bytes claim {info.file_size} bytes, "
                              f"more than deflate can pack ({MAX_DEFLATE_RATIO}:1): damaged, or a zip bomb")
         stream = _MemberBytes(self.path, self.start, info, f"array {self.array!r}: ")
-        head = stream.read(min(info.file_size, 1 << 16))
-        if head[6:7] in (b"\x02", b"\x03") and len(head) >= 12:  # a long 2.0/3.0 header
+        head = stream.read(min(info.file_size, 12))  # the header and no more: a seek inflates nothing else
+        need = len(head)
+        if head[6:7] == b"\x01" and len(head) >= 10:
+            need = 10 + struct.unpack("<H", head[8:10])[0]
+        elif head[6:7] in (b"\x02", b"\x03") and len(head) >= 12:  # a long 2.0/3.0 header
             need = 12 + struct.unpack("<I", head[8:12])[0]
-            if len(head) < need <= MAX_HEADER_BYTES + 12:
-                head += stream.read(need - len(head))
+        if len(head) < need <= MAX_HEADER_BYTES + 12:
+            head += stream.read(need - len(head))
         self.shape, self.fortran, self.dtype, self.offset = parse_header(head)
         self.count = math.prod(self.shape)
         if self.offset + self.count * self.dtype.itemsize != info.file_size:
@@ -128,6 +131,24 @@ class Member:
         """Close the file of a member not read to its end (only its header looked at, or a stream left early)."""
         self._file.close()  # reading it again raises "read twice"; closing twice is nothing
         self._stream = None
+
+    def skip_to_block(self, row: int, at: int, crcs, block_rows: int) -> None:
+        """Read the data from row `row` on, a block start: the member's compressed bytes from `at`, a flush
+        point of its deflate stream (`npz_writer`), each block of `block_rows` rows from there checked
+        against its CRC-32 in `crcs` (the member's own CRC covers the bytes skipped too)."""
+        if self._stream is None:
+            raise RuntimeError(f"{self.name}: read twice")
+        if self.info.compress_type != zipfile.ZIP_DEFLATED or self.fortran or not self.shape:
+            raise ValueError(f"array {self.array!r}: not a deflated array of rows: no block to start at")
+        row_bytes = self.dtype.itemsize * math.prod(self.shape[1:])
+        if not 0 < row < self.rows or not 0 < at < self.info.compress_size:
+            raise ValueError(f"array {self.array!r}: {self.where}: no block at row {row}, byte {at}")
+        self._file.close()
+        self._stream = _MemberBytes(self.path, self.start, self.info, f"array {self.array!r}: ",
+                                    skip=(at, self.offset + row * row_bytes),
+                                    block_crcs=(block_rows * row_bytes, [int(c) for c in crcs]))
+        self._file = self._stream.f
+        self._head = b""
 
     def _data(self) -> Iterator[bytes]:
         """The data bytes, once, in pieces (from where the header ended)."""
@@ -180,19 +201,25 @@ class Member:
 
 
 class _MemberBytes:
-    """A member's uncompressed bytes as a stream, its CRC and size checked at the end (`finish`)."""
+    """A member's uncompressed bytes as a stream, its CRC and size checked at the end (`finish`).
 
-    def __init__(self, path: str, start: int, info: zipfile.ZipInfo, prefix: str = ""):
+    `skip` = (compressed, uncompressed) bytes to start after: a flush point of a deflated member, whose
+    blocks from there are checked against `block_crcs` = (bytes per block, their CRC-32s) instead."""
+
+    def __init__(self, path: str, start: int, info: zipfile.ZipInfo, prefix: str = "", skip: tuple[int, int] = (0, 0),
+                 block_crcs: tuple[int, list[int]] | None = None):
         self.prefix = prefix
         self.f = builtins.open(path, "rb")  # noqa: SIM115 - closed in finish() or by the GC
-        self.f.seek(start)
+        self.f.seek(start + skip[0])
         self.start = start
         self.info = info
-        self.left = info.compress_size  # compressed bytes not yet read
+        self.left = info.compress_size - skip[0]  # compressed bytes not yet read
         self.inflate = zlib_ng.decompressobj(-15) if info.compress_type == zipfile.ZIP_DEFLATED else None
         self.pending = b""  # compressed input the inflater has not used yet
         self.crc = 0
-        self.size = 0
+        self.size = skip[1]  # uncompressed bytes so far
+        self.blocks = block_crcs
+        self.block = [0, 0, 0]  # block checks: the block's index, its bytes so far, their CRC
 
     def _fail(self, reason: str) -> ValueError:
         self.f.close()
@@ -225,11 +252,34 @@ class _MemberBytes:
         self.size += len(out)
         if self.size > self.info.file_size:
             raise self._fail(f"inflate to more than the {self.info.file_size} bytes the zip says")
-        self.crc = zlib_ng.crc32(out, self.crc)
+        if self.blocks is None:
+            self.crc = zlib_ng.crc32(out, self.crc)
+            return out
+        view, size = memoryview(out), self.blocks[0]
+        while len(view):
+            take = min(len(view), size - self.block[1])
+            self.block[2] = zlib_ng.crc32(view[:take], self.block[2])
+            self.block[1] += take
+            view = view[take:]
+            if self.block[1] == size:
+                self._end_block()
         return out
+
+    def _end_block(self) -> None:
+        i, _, crc = self.block
+        crcs = self.blocks[1]
+        if i >= len(crcs) or crc != crcs[i]:
+            raise self._fail(f"fail the CRC check of their block {i} from the seek point: the file is damaged")
+        self.block = [i + 1, 0, 0]
 
     def finish(self) -> None:
         self.f.close()
+        if self.blocks is not None:
+            if self.block[1]:
+                self._end_block()
+            if self.size != self.info.file_size or self.block[0] != len(self.blocks[1]):
+                raise self._fail("fail their size check from the seek point: the file is damaged")
+            return
         if self.size != self.info.file_size or self.crc != self.info.CRC:
             raise self._fail("fail their CRC check: the file is damaged")
 

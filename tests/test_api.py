@@ -1,6 +1,7 @@
 """The Python API (evstream.api, evstream.writers): what the CLI does, a script does — with the same results."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,3 +184,64 @@ def test_open_keeps_a_time_range():
     want = whole[(whole.t >= 100_000) & (whole.t < 200_000)]
     assert len(part) == len(want) > 0 and np.array_equal(part.t, want.t) and np.array_equal(part.x, want.x)
     assert evstream.info(BAR, end_us=50_000)["events"] == int((whole.t < 50_000).sum())
+
+
+def test_open_sink_refuses_the_recording_a_script_reads(tmp_path):
+    """`src = evstream.open(A)` then `open_sink(A)` (or a link to A) wrote over the recording being read."""
+    import gc
+    import os
+    import shutil
+
+    from evstream.safe_write import OutputIsInput
+
+    rec = tmp_path / "rec.npz"
+    shutil.copy(BAR, rec)
+    os.link(rec, tmp_path / "link.npz")
+    before = rec.read_bytes()
+    source = evstream.open(rec, start_us=0, end_us=100_000)
+    for out in (rec, tmp_path / "link.npz"):
+        with pytest.raises(OutputIsInput, match="that is the input recording"):
+            evstream.open_sink(out, geometry=source.geometry)
+    del source
+    gc.collect()  # a source that is gone is not read any more: its file may be written
+    other = tmp_path / "other.npz"
+    shutil.copy(BAR, other)
+    with pytest.raises(OutputIsInput):  # what the script says it reads, opened or not
+        evstream.open_sink(other, geometry=G, inputs=[other])
+    with pytest.raises(OutputIsInput):
+        evstream.open_sink(rec, source=evstream.read(other) and evstream.open(rec))
+    with evstream.open_sink(rec, source=evstream.open(other)) as sink:  # source= gives the geometry
+        sink.write(evstream.read(other))
+    assert rec.read_bytes() != before and len(evstream.read(rec)) == len(evstream.read(BAR))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.npz", "other.npz", "rec.npz"]
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".raw", ".h5", ".mcap", ".rrd"])
+def test_a_sink_never_closed_leaves_no_temporary_and_says_so(tmp_path, suffix):
+    """An open_sink neither closed nor used with `with` left OUT.part behind for good."""
+    import gc
+
+    from evstream.sources import EventWarning
+
+    out = tmp_path / f"a{suffix}"
+    out.write_bytes(b"old")
+    sink = evstream.open_sink(out, geometry=G)
+    sink.write(random_stream(1, 1000, G))
+    with pytest.warns(EventWarning, match=f"{out}: open_sink.* was never closed"):
+        del sink
+        gc.collect()
+    assert out.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+def test_a_script_that_ends_without_closing_its_sink_leaves_no_temporary(tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "a.mcap"
+    script = (f"import evstream\nsink = evstream.open_sink({str(out)!r}, geometry=(346, 260))\n"
+              "sink.write(evstream.read('recordings/bar.npz'))\n")
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                       cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 0, r.stderr
+    assert f"{out}: open_sink(...) was never closed" in r.stderr
+    assert list(tmp_path.iterdir()) == []

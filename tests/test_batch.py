@@ -266,6 +266,24 @@ def test_frames_many_writes_what_the_one_file_command_writes_and_a_rerun_skips(c
     assert "--out FOLDER" in capsys.readouterr().err
 
 
+def test_frames_many_leaves_nothing_for_a_recording_that_failed(client, dataset, tmp_path, capsys):
+    """A recording that failed (after some of its frames were written) left its folder OUT/NAME/ behind,
+    empty or half filled, beside the finished ones."""
+    from test_safe_write import text_recording
+
+    data = tmp_path / "data"
+    data.mkdir()
+    shutil.copy(dataset / "bar.npz", data / "good.npz")
+    text_recording(data / "bad.txt", bad_last_line=True)
+    out = tmp_path / "out"
+    argv = ["frames", str(data), "--out", str(out), "--scheduler", client.scheduler.address, "--framer", "fw",
+            "--window-us", "20000", "--quiet"]
+    assert main(argv) == 1
+    assert "bad.txt" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["good", "good.frames.json"]
+    assert len(list((out / "good").glob("frame_*.png"))) > 5
+
+
 def test_eval_many_gives_the_rows_of_the_one_process_eval_and_a_rerun_skips(client, dataset, tmp_path, capsys):
     """`eval DIR/ --out OUT/`: a task per recording; its rows (OUT/PATH.eval.json) are those the one-process
     `eval` computes for it; the tables and --json FILE cover every recording; a re-run skips them all."""
@@ -290,3 +308,31 @@ def test_eval_many_gives_the_rows_of_the_one_process_eval_and_a_rerun_skips(clie
     assert "0 done, 3 skipped" in capsys.readouterr().out
     assert main(["eval", str(dataset / "synthetic"), "--out", str(out), "--methods", "learned", "--quiet"]) == 2
     assert "leave-one-recording-out" in capsys.readouterr().err
+
+
+def test_recordings_of_one_name_in_two_formats_get_an_output_each(tmp_path):
+    """A folder with rec.aedat4 and rec.npy (tonic's datasets ship both) was refused: both went to rec.mcap.
+    Now each keeps its extension in its output's name, whichever way the command line names them."""
+    data = tmp_path / "data"
+    (data / "sub").mkdir(parents=True)
+    for name in ("rec.aedat4", "rec.npy", "other.npz", "sub/rec.npz"):
+        (data / name).write_bytes(b"x")
+    want = {"rec.aedat4.mcap", "rec.npy.mcap", "other.mcap", "sub/rec.mcap"}
+    got = {os.path.relpath(t.out, tmp_path / "out") for t in batch.plan([str(data)], tmp_path / "out", ".mcap")}
+    assert got == want
+    globbed = batch.plan([str(data / "rec.npy"), str(data / "*.aedat4")], tmp_path / "out", ".frames.json")
+    assert sorted(Path(t.out).name for t in globbed) == ["rec.aedat4.frames.json", "rec.npy.frames.json"]
+
+
+def test_tonics_aedat4_and_npy_of_one_recording_both_convert(client, real_data, tmp_path, capsys):
+    data = tmp_path / "tonic"
+    data.mkdir()
+    for ext in ("aedat4", "npy"):
+        shutil.copy(real_data / f"dvxplorer_320x240_tonic.{ext}", data)
+    out = tmp_path / "out"
+    assert main(["convert", str(data), str(out), "--to", "npz", "--scheduler", client.scheduler.address,
+                 "--quiet"]) == 0
+    assert "2 done, 0 skipped" in capsys.readouterr().out
+    for ext in ("aedat4", "npy"):
+        rec = data / f"dvxplorer_320x240_tonic.{ext}"
+        assert len(events_of(out / f"{rec.name}.npz")["t"]) == len(events_of(rec)["t"]) > 1000

@@ -417,8 +417,13 @@ def test_an_aedat4_header_byte_flipped_names_the_byte_not_a_rust_panic(tmp_path,
                     "is not UTF-8 (invalid start byte)")
 
 
-def test_ctrl_c_in_a_replay_stops_it_with_its_summary_and_the_file_so_far(tmp_path):
+@pytest.mark.parametrize("older", [False, True])
+def test_ctrl_c_in_a_replay_stops_it_with_its_summary_and_the_file_so_far(tmp_path, older):
+    """Ctrl-C renamed the events so far onto --save's file, replacing an older, whole one. Now that file is
+    left as it was (or not written) and the recording so far is PART.partial.rrd, named in the message."""
     rrd = tmp_path / "part.rrd"
+    if older:
+        rrd.write_bytes(b"an older recording")
     proc = subprocess.Popen([sys.executable, "-m", "evstream.cli", "replay", ROOT / "recordings" / "turntable.npz",
                              "--save", rrd, "--speed", "0.1", "--json"],  # 1 s of events in 10 s
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -437,8 +442,13 @@ def test_ctrl_c_in_a_replay_stops_it_with_its_summary_and_the_file_so_far(tmp_pa
     assert proc.returncode == 130  # was: 'evstream: interrupted' alone, no account of what was written
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["stopped_by"] == "SIGINT" and 0 < summary["events_in"] < 254_078
-    assert one_line_error(err) == f"evstream: interrupted by SIGINT; {rrd} holds the events up to there"
-    assert rrd.stat().st_size > 100_000
+    partial = tmp_path / "part.partial.rrd"
+    assert summary["rrd"] == str(partial) and summary["partial"] is True
+    target = f"{rrd} left as it was" if older else f"{rrd} not written"
+    assert one_line_error(err) == (f"evstream: interrupted by SIGINT; {target}; the recording of the events up "
+                                   f"to there is {partial}")
+    assert (rrd.read_bytes() == b"an older recording") if older else not rrd.exists()
+    assert partial.stat().st_size > 100_000 and not part.exists()
 
 
 def test_the_summary_rate_adds_up_for_a_small_recording(tmp_path, capsys, real_data):

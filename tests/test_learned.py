@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numba import njit
 
 from evstream.denoise.learned import FEATURES, LearnedFilter, Model, ModelError, load
 from evstream.denoise.learned.features import FEATURE_VERSION, HOT_SCORE, N_BINS, reference_features
 from evstream.denoise.learned.model import DEFAULT_MODEL
+from evstream.denoise.learned.neighbours import nb8_support, reference_nb8
 from evstream.denoise.learned.train import KEEP_GRID, features_of
 from evstream.events import Geometry, NoiseClass
 from evstream.noise import NoiseSpec, inject
@@ -39,6 +41,38 @@ def test_features_match_the_definition(seed, n, mean_dt_us, geometry):
     got = features_of(s)
     want = reference_features(s.t, s.x, s.y, s.p, geometry.width, geometry.height)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+@njit(cache=True)
+def _nb8_all(word, bins, centres, wp, tick, pis, b8):
+    out = np.zeros((len(centres), 2), np.int64)
+    for k in range(len(centres)):
+        out[k, 0], out[k, 1] = nb8_support(word, bins, centres[k], wp, tick, pis[k], b8)
+    return out
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32), st.integers(1, 40), st.integers(1, 30),
+       st.sampled_from([130, 700, 4000, 70_000, 2**31 - 1]))
+def test_vector_neighbour_pass_matches_its_definition(seed, width, height, spread):
+    """Ages on both sides of each support limit and of the DC idle limit, both polarities, last active
+    bins within and past the 64 counted (and across the modulo-256 wrap), random bitmaps, every pixel."""
+    rng = np.random.default_rng(seed)
+    wp = width + 4
+    size = (height + 4) * wp
+    now = int(rng.integers(spread, 2**31))
+    b8 = int(rng.integers(0, 256))
+    last = now - rng.integers(0, spread + 1, size)
+    last_bin = (b8 - rng.integers(0, 80, size)) % 256
+    word = ((last_bin << 48) | (rng.integers(0, 1 << 16, size) << 32) | (last << 1)
+            | rng.integers(0, 2, size)).astype(np.int64)
+    bins = rng.integers(-(2**63), 2**63 - 1, size, dtype=np.int64)
+    word[rng.random(size) < 0.2] = 0  # never fired
+    centres = np.array([(y + 2) * wp + x + 2 for y in range(height) for x in range(width)], np.intp)
+    pis = rng.integers(0, 2, len(centres)).astype(np.int64)
+    got = _nb8_all(word, bins, centres, wp, now, pis, b8)
+    want = [reference_nb8(word, bins, int(c), wp, now, int(q), b8) for c, q in zip(centres, pis)]
+    np.testing.assert_array_equal(got, np.array(want, np.int64).reshape(-1, 2))
 
 
 @settings(max_examples=5, deadline=None)

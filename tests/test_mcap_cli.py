@@ -125,23 +125,46 @@ def test_sigkill_loses_at_most_the_chunk_in_progress(recording, tmp_path):
         np.testing.assert_array_equal(getattr(got, f), getattr(full, f)[: len(got)])
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_sigint_and_sigterm_finish_a_valid_file(recording, tmp_path, sig):
+@pytest.mark.parametrize(("sig", "older"), [(signal.SIGINT, True), (signal.SIGTERM, False)])
+def test_sigint_and_sigterm_finish_a_valid_file_beside_the_target(recording, tmp_path, sig, older):
+    """Ctrl-C used to rename the events so far onto OUT: an older, whole archive there was replaced by a
+    partial one. Now OUT is left as it was (or not written) and the archive so far, closed properly, is
+    OUT-STEM.partial.mcap, which the message names."""
     out = tmp_path / f"stopped-{sig.name}.mcap"
+    if older:
+        out.write_bytes(b"an older archive")
     proc = _start(recording, out, "--json")
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 128 + sig, stderr
-    assert f"interrupted by {sig.name}" in stderr.decode()
+    partial = tmp_path / f"stopped-{sig.name}.partial.mcap"
+    target = f"{out} left as it was" if older else f"{out} not written"
+    assert stderr.decode().strip().splitlines()[-1] == (
+        f"evstream: interrupted by {sig.name}; {target}; the archive of the events up to there is {partial}")
+    assert (out.read_bytes() == b"an older archive") if older else not out.exists()
+    assert not _part(out).exists()
     summary = json.loads(stdout.decode().strip().splitlines()[-1])
     assert summary["stopped_by"] == sig.name and 0 < summary["events_in"] < 600_000
-    with open(out, "rb") as f:
+    assert summary["mcap"] == str(partial) and summary["partial"] is True
+    with open(partial, "rb") as f:
         assert make_reader(f).get_summary() is not None  # footer and summary written
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a complete file: no truncation warning
-        got = concat(list(open_source(out)))
+        got = concat(list(open_source(partial)))
     assert len(got) == summary["events_signal"]
-    assert int(mcap_log.read_metadata(out)["evstream.stats"]["run_events_in"]) == summary["events_in"]
+    assert int(mcap_log.read_metadata(partial)["evstream.stats"]["run_events_in"]) == summary["events_in"]
+
+
+def test_a_second_interrupted_archive_does_not_replace_the_first_partial_file(recording, tmp_path):
+    out = tmp_path / "a.mcap"
+    (tmp_path / "a.partial.mcap").write_bytes(b"the first interrupted run")
+    proc = _start(recording, out)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert (tmp_path / "a.partial.mcap").read_bytes() == b"the first interrupted run"
+    assert stderr.decode().strip().endswith(f"is {tmp_path / 'a.partial.1.mcap'}")
+    assert len(concat(list(open_source(tmp_path / "a.partial.1.mcap")))) > 0
 
 
 @pytest.mark.parametrize("name", ["prophesee_gen41_hd_evt3_expelliarmus.raw", "davis346_frames_imu_evlib.aedat4"])

@@ -11,6 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evstream.events import EventChunk, Geometry
+from evstream.framing.base import COUNT_MAX
+from evstream.framing.fixed import accumulate
+from evstream.framing.overlap import add_flat
 from evstream.framing.represent import (
     EXP_FLOOR,
     NEVER_US,
@@ -22,8 +25,13 @@ from evstream.framing.represent import (
     surface_exponent,
     timestamp_kernel,
     timestamp_of_chunk,
+    voxel_count_flat,
+    voxel_count_of_chunk,
     voxel_kernel,
     voxel_of_chunk,
+    voxel_table,
+    voxel_table_kernel,
+    voxel_table_of_chunk,
 )
 from evstream.pipeline import Pipeline, build
 from evstream.testing import (
@@ -118,6 +126,7 @@ def test_matches_the_definition(kind, window, all_events):
     assert len(frames) > 5
     plain = frames_of(build("framer", {"kind": window, **WINDOWS[window], "all_events": all_events}), [stream])
     assert [(f.t_start, f.t_end, f.n_events) for f in frames] == [(f.t_start, f.t_end, f.n_events) for f in plain]
+    assert all(np.array_equal(f.counts, g.counts) for f, g in zip(frames, plain))  # some counted by the follower
     for fr, ref in zip(frames, reference(kind, stream, frames, window, all_events=all_events)):
         assert isinstance(fr, Representation) and fr.kind == kind
         assert fr.data.dtype == np.float32 and fr.data.flags.c_contiguous and fr.data.flags.owndata
@@ -236,6 +245,86 @@ def test_chunk_kernels_match_plain_python(seed, n, bins, use_cls):
     timestamp_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, width, hw, ts)
     flat = p.astype(np.int64) * hw + pix
     np.testing.assert_allclose(ts, timestamp_plain(t[keep], flat[keep], t_start, t_end, hw), rtol=1e-6)
+
+
+def voxel_table_plain(span_us, bins, hw):
+    """`voxel_table` in plain Python: the same float64 product, its float32 fraction, the signed weights."""
+    scale = (bins - 1) / max(1, span_us - 1)
+    lo_at, w_lo, w_hi = [], [], []
+    for d in range(span_us):
+        tn = d * scale
+        lo = int(tn)
+        w = np.float32(tn - lo)
+        lo_at.append(lo * hw)
+        for v in (np.float32(-1), np.float32(1)):
+            w_lo.append(float(v - v * w))
+            w_hi.append(float(v * w) if lo < bins - 1 else 0.0)
+    return lo_at, w_lo, w_hi
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(0, 300), st.integers(1, 6), st.booleans())
+def test_voxel_table_kernels_are_the_arithmetic_kernels_to_the_bit(seed, n, bins, use_cls):
+    """Windows of one span go through a table of each µs's arithmetic: the table is the plain-Python one,
+    and the grid it gives is the arithmetic kernels' bit for bit (and the definition's)."""
+    rng = np.random.default_rng(seed)
+    width, height = 4, 3
+    hw = width * height
+    t, x, y, p, cls = random_events(rng, n, width, height)
+    t_start = 100
+    span = int(t[-1]) - t_start + 1 + int(rng.integers(0, 5)) if n else int(rng.integers(1, 9))
+    lo_at, w_lo, w_hi = np.empty(span, np.intp), np.empty(2 * span, np.float32), np.empty(2 * span, np.float32)
+    voxel_table(span, bins, hw, lo_at, w_lo, w_hi)
+    assert (lo_at.tolist(), w_lo.tolist(), w_hi.tolist()) == voxel_table_plain(span, bins, hw)
+
+    keep = cls == 0 if use_cls else np.ones(n, bool)
+    pix = y.astype(np.int64) * width + x
+    flat = (p.astype(np.int64) * hw + pix).astype(np.uint32)
+    arith, table = np.zeros(bins * hw, np.float32), np.zeros(bins * hw, np.float32)
+    voxel_kernel(t[keep], flat[keep], t_start, t_start + span, bins, hw, arith)
+    voxel_table_kernel(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, table)
+    assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
+    np.testing.assert_allclose(table, voxel_plain(t[keep], pix[keep], p[keep] == 1, t_start, t_start + span, bins,
+                                                  hw), atol=1e-5)
+    arith[:], table[:] = 0, 0
+    voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_start + span, bins, width, hw, arith)
+    voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_lo, w_hi, table)
+    assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
+
+    # counting and adding in one pass: the counts of `accumulate` / `add_flat` (saturating), the same grid
+    a = int(rng.integers(0, n + 1))
+    start_counts = rng.choice([0, COUNT_MAX - 1, COUNT_MAX], 2 * hw).astype(np.uint16)
+    counts, ref_counts = start_counts.copy(), start_counts.copy()
+    table[:] = 0
+    added = voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, n, t_start, width, hw, lo_at, w_lo, w_hi, counts,
+                                 table)
+    assert added == accumulate(x, y, p, cls, use_cls, a, n, ref_counts, width, hw)
+    assert counts.tolist() == ref_counts.tolist()
+    arith[:] = 0
+    voxel_table_of_chunk(t[a:], x[a:], y[a:], p[a:], cls[a:], use_cls, t_start, width, hw, lo_at, w_lo, w_hi, arith)
+    assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
+    counts, ref_counts = start_counts.copy(), start_counts.copy()
+    table[:] = 0
+    voxel_count_flat(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, counts, table)
+    add_flat(ref_counts, flat[keep], 0, int(keep.sum()))
+    assert counts.tolist() == ref_counts.tolist()
+    arith[:] = 0
+    voxel_table_kernel(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, arith)
+    assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
+
+
+@pytest.mark.parametrize("window", ["fw", "oa", "adaptive"])
+def test_voxel_grid_without_its_table_is_the_same_to_the_bit(window, monkeypatch):
+    """Windows longer than the table's limit take the arithmetic kernels: the same grids, bit for bit."""
+    import evstream.framing.represent as represent
+
+    stream = labelled(5, 2000)
+    with_table = frames_of(make("voxel", window)(), [stream])
+    monkeypatch.setattr(represent, "VOXEL_TABLE_MAX_US", 0)
+    without = frames_of(make("voxel", window)(), [stream])
+    assert len(with_table) == len(without) > 5
+    for a, b in zip(with_table, without):
+        assert (a.t_start, a.t_end, a.n_events) == (b.t_start, b.t_end, b.n_events)
+        assert a.data.view(np.uint32).tolist() == b.data.view(np.uint32).tolist()
 
 
 @given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.booleans(), st.sampled_from([np.int32, np.int64]))

@@ -183,3 +183,87 @@ def test_a_disk_that_fills_while_an_archive_is_written_keeps_the_older_archive(f
     assert rc == 1 and "no space left" in one_line_error(err)
     assert out.read_bytes() == b"older archive"
     np.testing.assert_equal(sorted(p.name for p in full_disk.iterdir()), ["a.mcap", "filler"])
+
+
+def test_an_archive_stopped_early_from_the_api_leaves_the_target_and_sets_its_events_aside(tmp_path):
+    """`evstream.archive(..., stop=)` renamed the events so far onto OUT, replacing an older archive."""
+    import evstream
+
+    out = tmp_path / "a.mcap"
+    out.write_bytes(b"older")
+    calls = []
+    summary = evstream.archive(SHIPPED, out, stop=lambda: calls.append(1) or len(calls) >= 2)
+    assert out.read_bytes() == b"older" and not Path(f"{out}.part").exists()
+    assert summary["partial"] is True and summary["mcap"] == str(tmp_path / "a.partial.mcap")
+    assert 0 < len(events_of(summary["mcap"])) == summary["events_signal"] < len(events_of(SHIPPED))
+    whole = evstream.archive(SHIPPED, out)  # not stopped: put in place as before
+    assert whole["partial"] is False and whole["mcap"] == str(out) and out.read_bytes()[:5] != b"older"
+
+
+def test_set_aside_never_replaces_a_file_and_keeps_the_extension(tmp_path):
+    (tmp_path / "x.rrd").write_bytes(b"target")
+    (tmp_path / "x.partial.rrd").write_bytes(b"first")
+    out = AtomicOutput(tmp_path / "x.rrd")
+    out.part.write_bytes(b"second")
+    assert out.set_aside() == tmp_path / "x.partial.1.rrd"
+    assert [(p.name, p.read_bytes()) for p in sorted(tmp_path.iterdir())] == [
+        ("x.partial.1.rrd", b"second"), ("x.partial.rrd", b"first"), ("x.rrd", b"target")]
+
+
+def test_a_second_ctrl_c_keeps_the_archive_so_far_and_says_where(tmp_path):
+    """The second signal raises KeyboardInterrupt mid-run: the target stays, the archive so far is closed in
+    OUT.part and the interruption names it (it said only 'evstream: interrupted')."""
+    import evstream
+
+    class Interrupted:
+        geometry = Geometry(64, 48)
+        path = None
+
+        def __iter__(self):
+            stream = random_stream(5, 20_000, self.geometry, mean_dt_us=50.0)
+            yield stream[:10_000]
+            raise KeyboardInterrupt
+
+    out = tmp_path / "a.mcap"
+    out.write_bytes(b"older")
+    with pytest.raises(KeyboardInterrupt) as e:
+        evstream.archive(Interrupted(), out, pipeline=evstream.build_pipeline("none"))
+    assert str(e.value) == f"{out} left as it was; the output up to there is in {out}.part"
+    assert out.read_bytes() == b"older" and len(events_of(f"{out}.part")) == 10_000
+
+
+def text_recording(path, bad_last_line: bool):
+    """0.4 s of the bar scene as a text file; with `bad_last_line`, one event outside the sensor at the end:
+    the run fails after its frames were written."""
+    from evstream import synth
+
+    c = synth.scene("bar", duration_us=400_000, seed=0)
+    lines = [f"{c.geometry.width} {c.geometry.height}"] + [f"{t} {x} {y} {int(p)}" for t, x, y, p in
+                                                            zip(c.t, c.x, c.y, c.p)]
+    path.write_text("\n".join(lines + (["400001 999 5 1"] if bad_last_line else [])) + "\n")
+    return path
+
+
+def test_frames_out_that_fails_leaves_the_folder_as_it_was(tmp_path, capsys):
+    """A run that failed after writing frames left them (and a new, empty or half-filled folder) behind,
+    over the frames of an earlier run; a whole run replaced frames but kept an earlier run's extra ones."""
+    good, bad = text_recording(tmp_path / "good.txt", False), text_recording(tmp_path / "bad.txt", True)
+    frames = ["--framer", "fw", "--window-us", "20000", "--quiet"]
+    rc, _, err = run(["frames", bad, "--out", tmp_path / "new", *frames], capsys)
+    assert rc == 1 and "outside the 346x260 sensor" in one_line_error(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.txt", "good.txt"]  # no folder, no .part
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "notes.txt").write_text("mine")
+    for i in range(30):
+        (old / f"frame_{i:06d}.png").write_bytes(b"an older frame")
+    before = {p.name: p.read_bytes() for p in old.iterdir()}
+    rc, _, err = run(["frames", bad, "--out", old, *frames], capsys)
+    assert rc == 1 and {p.name: p.read_bytes() for p in old.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.txt", "good.txt", "old"]
+    rc, out, err = run(["frames", good, "--out", old, *frames], capsys)
+    assert rc == 0, err
+    pngs = sorted(p.name for p in old.glob("frame_*.png"))
+    assert pngs == [f"frame_{i:06d}.png" for i in range(20)]  # the 10 older ones past the end are gone
+    assert all((old / name).read_bytes().startswith(b"\x89PNG") for name in pngs)
+    assert (old / "notes.txt").read_text() == "mine" and f"wrote 20 PNG frames to {old}\n" in out

@@ -67,8 +67,8 @@ def _run(args) -> int:
     except UsageError as e:
         print(f"evstream: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("evstream: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:  # a second Ctrl-C: at once (what a writer kept, it says)
+        print(f"evstream: interrupted; {e}" if str(e) else "evstream: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `evstream info REC | head -3`: the reader left; not an error to print
         try:  # Python's own flush of stdout at exit must not raise it again

@@ -47,13 +47,21 @@ def cmd_archive(args) -> int:
         print(summary_line(stats))
         if getattr(args, "stored_classes", False):
             print(STORED_CLASSES_NOTE)
-        print(f"wrote {args.out}{folder_note(created)}: {summary['packets']:,} event packets, "
+        print(f"wrote {summary['mcap']}{folder_note(created)}: {summary['packets']:,} event packets, "
               f"{summary['frames_written']:,} frames")
     if stop.signum is not None:
-        print(f"evstream: interrupted by {signal.Signals(stop.signum).name}; {args.out} is complete up to there",
+        print(f"evstream: interrupted by {signal.Signals(stop.signum).name}; {interrupted_note(args.out, summary)}",
               file=sys.stderr)
         return 128 + int(stop.signum)
     return 0
+
+
+def interrupted_note(out: str, summary: dict) -> str:
+    """What an interrupted file archive left: the target as it was (or not there), the events so far aside."""
+    target = f"{out} left as it was" if Path(out).exists() else f"{out} not written"
+    if not summary.get("partial"):  # stopped after the last chunk: nothing was cut short
+        return f"{out} is complete"
+    return f"{target}; the archive of the events up to there is {summary['mcap']}"
 
 
 def archive_one(args, stop: StopOnSignal | None = None):
@@ -78,7 +86,7 @@ def archive_one(args, stop: StopOnSignal | None = None):
     finally:
         progress.done()
     signum = stop.signum if stop else None
-    summary.update(mcap=args.out, created_folder=created or None,
+    summary.update(created_folder=created or None,
                    stopped_by=signal.Signals(signum).name if signum else None)
     return summary, pipeline.stats, created
 

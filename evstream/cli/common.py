@@ -221,13 +221,19 @@ def add_quiet_flag(p) -> None:
 def create_folder(folder) -> str:
     """Make `folder` (and its parents) if missing; returns the topmost folder it made, or '' (a summary
     line says what it created: `folder_note`)."""
+    missing = first_missing(folder)
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return missing
+
+
+def first_missing(folder) -> str:
+    """The topmost folder of `folder`'s path that does not exist yet, or '' (what `create_folder` would make)."""
     folder = Path(folder)
     missing = ""
     for f in (folder, *folder.parents):
         if f.exists():
             break
         missing = str(f)
-    folder.mkdir(parents=True, exist_ok=True)
     return missing
 
 
@@ -290,11 +296,3 @@ def rerun_command() -> str:
     except ValueError:  # another drive (Windows)
         return str(beside)
 
-
-def evstream_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("evstream")
-    except Exception:  # not installed (running from a source tree)
-        return "unknown"

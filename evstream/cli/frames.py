@@ -12,7 +12,7 @@ from ..events import NoiseClass
 from ..framing import options as framer_options
 from ..framing.render import STYLES
 from ..pipeline import build
-from ..safe_write import AtomicOutput
+from ..safe_write import AtomicFolder, AtomicOutput
 from .batch import add_batch_flags, run_batch
 from .common import (
     STORED_CLASSES_NOTE,
@@ -21,7 +21,7 @@ from .common import (
     add_pipeline_flags,
     add_quiet_flag,
     add_source_flags,
-    create_folder,
+    first_missing,
     folder_note,
     open_recording,
     pipeline_from_args,
@@ -30,11 +30,6 @@ from .common import (
 
 def frames_one(args) -> list[dict]:
     """The one-file command without its printing: one row of statistics per framer."""
-    from ..framing.arrays import ArrayWriter
-    from ..framing.render import PngWriter
-    from ..framing.represent import REPRESENTATIONS
-    from ..framing.stats import FrameStats
-
     try:
         kinds_ = framer_options.framer_kinds(args)
         framer_options.framers_from_args(args)  # validate every parameter before reading anything
@@ -43,39 +38,59 @@ def frames_one(args) -> list[dict]:
     if not kinds_:
         raise UsageError("--framer none: name a framer (fw, fn, oa, adaptive)")
     rows = []
-    created = ""
-    for kind in kinds_:
-        source = open_recording(args.source, args)
-        pipeline = pipeline_from_args(args, source)
-        pipeline.framer = build("framer", framer_options.framer_spec(kind, args))
-        fstats = FrameStats()  # fed per chunk: frames the end of the stream cut short are left out
-        sinks = []
-        writer = None
-        if args.out:
-            out_dir = Path(args.out) / kind if len(kinds_) > 1 else Path(args.out)
-            created = create_folder(out_dir)
-            # a representation's arrays as .npz (one per window); frames as PNG pictures
-            writer = ArrayWriter(out_dir) if kind in REPRESENTATIONS else PngWriter(out_dir, style=args.style)
-            sinks.append(writer)
-        progress = Progress(source, quiet=args.quiet, desc=kind)
-
-        def on_batch(batch, fstats=fstats, progress=progress):
-            fstats.add_frames(batch.frames)
-            progress(batch)
-
-        stats = pipeline.run(source, sinks, on_batch=on_batch)
-        progress.done()
-        fstats.duration_us = stats.duration_us
-        rows.append({"framer": pipeline.describe()["framer"], **fstats.as_dict(),
-                     "frames_at_end": stats.frames - fstats.frames,
-                     "events_in": stats.events_in, "events_signal": int(stats.per_class[NoiseClass.SIGNAL]),
-                     "denoise": [st["kind"] for st in pipeline.describe()["stages"]],
-                     "png_dir": str(writer.out_dir) if writer else None,
-                     "png_written": writer.written if writer else 0,
-                     "files": "npz" if kind in REPRESENTATIONS else "png",
-                     "events_dropped": stats.events_dropped, "reports": pipeline.reports(),
-                     "created_folder": created or None})
+    created = first_missing(args.out) if args.out else ""
+    # every file goes to OUT.part/ first and into OUT once every framer ran: a failed run leaves OUT as it was
+    staging = AtomicFolder(args.out, replaces=("frame_*.png", "frame_*.npz")) if args.out else None
+    try:
+        for kind in kinds_:
+            rows.append(_frame_with(kind, args, staging.part if staging else None, len(kinds_) > 1))
+    except BaseException:
+        if staging is not None:
+            staging.discard()
+        raise
+    if staging is not None:
+        staging.commit()
+        for row in rows:
+            row["created_folder"] = created or None
     return rows
+
+
+def _frame_with(kind: str, args, staging: Path | None, several: bool) -> dict:
+    """One framer's run over the recording: its row of statistics; its files into `staging` (/KIND)."""
+    from ..framing.arrays import ArrayWriter
+    from ..framing.render import PngWriter
+    from ..framing.represent import REPRESENTATIONS
+    from ..framing.stats import FrameStats
+
+    source = open_recording(args.source, args)
+    pipeline = pipeline_from_args(args, source)
+    pipeline.framer = build("framer", framer_options.framer_spec(kind, args))
+    fstats = FrameStats()  # fed per chunk: frames the end of the stream cut short are left out
+    sinks = []
+    writer = None
+    if staging is not None:
+        # a representation's arrays as .npz (one per window); frames as PNG pictures
+        folder = staging / kind if several else staging
+        writer = ArrayWriter(folder) if kind in REPRESENTATIONS else PngWriter(folder, style=args.style)
+        sinks.append(writer)
+    progress = Progress(source, quiet=args.quiet, desc=kind)
+
+    def on_batch(batch):
+        fstats.add_frames(batch.frames)
+        progress(batch)
+
+    stats = pipeline.run(source, sinks, on_batch=on_batch)
+    progress.done()
+    fstats.duration_us = stats.duration_us
+    return {"framer": pipeline.describe()["framer"], **fstats.as_dict(),
+            "frames_at_end": stats.frames - fstats.frames,
+            "events_in": stats.events_in, "events_signal": int(stats.per_class[NoiseClass.SIGNAL]),
+            "denoise": [st["kind"] for st in pipeline.describe()["stages"]],
+            "png_dir": str(Path(args.out) / kind if several else Path(args.out)) if writer else None,
+            "png_written": writer.written if writer else 0,
+            "files": "npz" if kind in REPRESENTATIONS else "png",
+            "events_dropped": stats.events_dropped, "reports": pipeline.reports(),
+            "created_folder": None}
 
 
 SUMMARY_SUFFIX = ".frames.json"  # a recording's statistics, written last: its frames are complete

@@ -106,10 +106,12 @@ def cmd_replay(args) -> int:
             stats = pipeline.run(paced(lag.watch(source), args.speed), [sink], on_batch=on_batch,
                                  threads=threads.enabled(default=False), stop=lambda: stop.signum is not None)
         progress.done()
-        out.finish()
         stopped_by = signal.Signals(stop.signum).name if stop.signum else None
+        existed = bool(save) and Path(save).exists()
+        written = out.finish(interrupted=bool(stopped_by))  # cut short: set aside, an older SAVE left as it was
         summary = {**stats.as_dict(), "points_logged": sink.points_logged, "points_dropped": sink.points_dropped,
-                   **lag.as_dict(), "output": out.mode, "rrd": save, "grpc_url": out.grpc_url,
+                   **lag.as_dict(), "output": out.mode, "rrd": written, "partial": bool(save and stopped_by),
+                   "grpc_url": out.grpc_url,
                    "web_url": out.web_url, "stopped_by": stopped_by, "created_folder": created or None}
         if args.json:
             print(json.dumps(summary), flush=True)
@@ -130,11 +132,13 @@ def cmd_replay(args) -> int:
                 print(f"real-time lag: median {d['lag_median_ms']:.1f} ms, p99 {d['lag_p99_ms']:.1f} ms, "
                       f"max {d['lag_max_ms']:.1f} ms, at the end {d['lag_end_ms']:.1f} ms")
             if save:
-                print(f"wrote {save}{folder_note(created)} — open it with:  {rerun_command()} {save}   "
-                      f"(or: evstream replay {shlex.quote(args.source)} --spawn / --serve; the .rrd is the viewer's)")
+                print(f"wrote {written}{folder_note(created)} — open it with:  {rerun_command()} "
+                      f"{shlex.quote(written)}   (or: evstream replay {shlex.quote(args.source)} --spawn / --serve; "
+                      "the .rrd is the viewer's)")
         sys.stdout.flush()
         if stopped_by:
-            where = f"; {save} holds the events up to there" if save else ""
+            where = (f"; {save} {'left as it was' if existed else 'not written'}; the recording of the events up "
+                     f"to there is {written}") if save else ""
             print(f"evstream: interrupted by {stopped_by}{where}", file=sys.stderr)
             return 128 + int(stop.signum)
         if out.mode == "serve":

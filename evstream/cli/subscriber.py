@@ -10,7 +10,6 @@ import numpy as np
 
 from .. import threads
 from ..events import EventChunk, NoiseClass
-from ..threads import WriteBehind
 from .common import attach_framer, pipeline_from_args
 
 
@@ -56,7 +55,9 @@ class Camera:
         attach_framer(self.pipeline, args)
         self.sinks = []
         self.pub = None
-        self.writer = WriteBehind(self._deliver, name=f"evstream-{self.name}-writer") if threads.enabled() else None
+        self.writer = None
+        if threads.enabled():
+            self.writer = threads.WriteBehind(self._deliver, name=f"evstream-{self.name}-writer")
         if args.archive:
             from evstream.sinks.mcap_sink import McapSink
 

@@ -60,6 +60,14 @@ class SlidingFramer(FramerBase):
     needed again, so only the later ones are buffered)."""
 
     window_us: int
+    # A representation framer follows the frames' events (so it needs no buffer of its own) and counts
+    # them for the frame in the same pass (one pass over the events instead of two): in stream order,
+    # `follower.add(chunk, cls, use_cls, a, b, start, end, counts)` counts the chunk's events [a, b) into
+    # the frame [start, end)'s `counts` exactly as `accumulate` does and returns how many it counted;
+    # `follower.add_flat(t, f, start, end, counts)` those of buffered events (times, flat indices, all
+    # counted) as `add_flat` does: the events [mid, b) the frame buffers, and those a new frame
+    # starts with when the previous one closes.
+    follower = None
 
     def _reset(self) -> None:
         super()._reset()
@@ -94,8 +102,11 @@ class SlidingFramer(FramerBase):
             while True:
                 stop = i + int(np.searchsorted(t[i:], self.end, side="left"))
                 mid = i + int(np.searchsorted(t[i:stop], self.end - self._reach_us, side="left"))
-                self.n += accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, i, mid, self.counts,
-                                     self._width, self._hw)
+                if self.follower is None:
+                    self.n += accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, i, mid, self.counts,
+                                         self._width, self._hw)
+                elif mid > i:
+                    self.n += self.follower.add(chunk, cls, use_cls, i, mid, self.start, self.end, self.counts)
                 self._buffer(chunk, cls, use_cls, mid, stop)
                 i = stop
                 if i == len(chunk):
@@ -119,7 +130,10 @@ class SlidingFramer(FramerBase):
         else:
             self.buf_t[at : at + k] = chunk.t[idx]
             flat_index_of(chunk.x, chunk.y, chunk.p, idx, self._width, self._hw, self.buf_f, at)
-        add_flat(self.counts, self.buf_f, at, at + k)
+        if self.follower is None:
+            add_flat(self.counts, self.buf_f, at, at + k)
+        elif k:
+            self.follower.add_flat(self.buf_t[at : at + k], self.buf_f[at : at + k], self.start, self.end, self.counts)
         self.tail += k
         self.n += k
 
@@ -154,7 +168,11 @@ class SlidingFramer(FramerBase):
         else:  # hand the counts to the frame; rebuild the next frame's from the events that stay
             out.append(self._frame(self.start, self.end, n, self.counts))
             self.counts = self._new_counts()
-            add_flat(self.counts, self.buf_f, j, self.tail)
+            if self.follower is None:
+                add_flat(self.counts, self.buf_f, j, self.tail)
+            elif j < self.tail:
+                self.follower.add_flat(self.buf_t[j : self.tail], self.buf_f[j : self.tail], nxt, nxt + self.window_us,
+                                       self.counts)
         self.head = j
         self.n = self.tail - j
         self.start = nxt

@@ -19,9 +19,11 @@ Per window [t_start, t_end) holding n counted events (SIGNAL ones unless `all_ev
   window's span (for fixed-count windows t_start and t_end − 1 are the first and last events, as in
   the paper and tonic).
 
-Over fixed time windows (whose span is known when they open) the voxel grid and the last timestamp add
-each event to its window's array as it arrives; over the others an array is computed when its window
-closes, from the window's events buffered in stream order (times and flat pixel indices). The time
+Over fixed time and overlapping windows (whose span is known when they open) the voxel grid and the last
+timestamp add each event to its window's array as it arrives (an overlapping window opens with the
+events it shares with the previous one, taken from the windowing framer's own buffer); over fixed-count
+windows (whose span is known only when they close) an array is computed when its window closes, from
+the window's events buffered in stream order (times and flat pixel indices). The time
 surface buffers no events, only the newest time per pixel and polarity (int32 from a moving base, or
 int64 for long τ). Memory O(W·H + events per window), never the stream. Events are always taken in
 stream order, so every array is bit-identical however the stream was chunked. Arrays are fresh,
@@ -38,9 +40,11 @@ import numpy as np
 from numba import njit
 
 from ..events import EventChunk, Frame
+from ..nowrap import ix
 from ..pipeline import build, register
-from .base import FramerBase, check_positive_int
-from .overlap import flat_index, flat_index_of
+from .base import COUNT_MAX, FramerBase, check_positive_int
+from .fixed import accumulate
+from .overlap import add_flat, flat_index, flat_index_of
 
 WINDOWS = ("fw", "fn", "oa", "adaptive")
 # The windowing framers' parameters a representation passes on (None: the window's default).
@@ -49,6 +53,7 @@ WINDOW_PARAMS = ("window_us", "stride_us", "n_events", "max_window_us", "n_base"
 NEVER_US = -(1 << 62)  # "no event yet": exp(−(t − NEVER_US)/τ) is exactly 0 for any τ we accept
 MAX_TAU_US = 1 << 40
 REBASE_US = 1 << 30  # time surface: int32 times move their base once an event is this far past it
+VOXEL_TABLE_MAX_US = 1 << 16  # voxel grid: the largest window span given a table (24 bytes per µs)
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,10 +79,10 @@ def _voxel_add(out, pix, on, dt, scale, last, hw):
     tn = dt * scale
     lo = np.intp(tn)
     w_hi = np.float32(tn - lo)
-    k = lo * hw + pix
-    out[k] += v - v * w_hi
+    k = lo * hw + pix  # >= 0: dt >= 0 (the event is in the window)
+    out[ix(k)] += v - v * w_hi
     if lo < last:
-        out[k + hw] += v * w_hi
+        out[ix(k + hw)] += v * w_hi
 
 
 @njit(cache=True, nogil=True)
@@ -101,6 +106,89 @@ def voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, bins, width, hw, ou
         if use_cls and cls[j] != 0:
             continue
         _voxel_add(out, np.intp(y[j]) * width + np.intp(x[j]), np.intp(p[j]), t[j] - t_start, scale, bins - 1, hw)
+
+
+# Windows of one span (fixed time and overlapping ones) share each µs's arithmetic: a table of it, made
+# once, replaces five float conversions and three products per event by three loads (~20 % of the
+# voxel kernel). Its entries are computed exactly as `_voxel_add` computes them, so the grid is the same
+# to the bit: v − v·w for v = −1 is −(1 − w) exactly, and a bin's weight of ±0 (t* a whole number)
+# changes no sum (a sum starting at +0 is never −0), so the table skips it as the last bin's.
+@njit(cache=True, nogil=True)
+def voxel_table(span_us, bins, hw, lo_at, w_lo, w_hi):
+    """For each dt in [0, span_us): lo_at[dt] = lo·H·W (lo = ⌊t*⌋, t* = dt·scale as in `voxel_kernel`)
+    and, at 2·dt + on, the weights of polarity ±1 in bins lo and lo + 1 (0 for the last bin)."""
+    scale = (bins - 1) / max(1, span_us - 1)
+    last = bins - 1
+    for d in range(len(lo_at)):
+        tn = d * scale
+        lo = np.intp(tn)
+        w = np.float32(tn - lo)
+        lo_at[d] = lo * hw
+        for on in range(2):
+            v = np.float32(2 * on - 1)
+            w_lo[2 * d + on] = v - v * w
+            w_hi[2 * d + on] = v * w if lo < last else np.float32(0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _voxel_add_table(out, pix, on, dt, hw, lo_at, w_lo, w_hi):
+    k = lo_at[ix(dt)] + pix  # dt in [0, span): the event is in the window
+    e = ix(2 * dt + on)
+    out[ix(k)] += w_lo[e]
+    w = w_hi[e]
+    if w != 0:
+        out[ix(k + hw)] += w
+
+
+@njit(cache=True, nogil=True)
+def voxel_table_kernel(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, out):
+    """`voxel_kernel` through the table of the window's span (`voxel_table`)."""
+    for j in range(len(buf_t)):
+        f = np.intp(buf_f[j])
+        on = np.intp(f >= hw)
+        _voxel_add_table(out, f - hw * on, on, buf_t[j] - t_start, hw, lo_at, w_lo, w_hi)
+
+
+@njit(cache=True, nogil=True)
+def voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_lo, w_hi, out):
+    """`voxel_of_chunk` through the table of the window's span (`voxel_table`)."""
+    for j in range(len(t)):
+        if use_cls and cls[j] != 0:
+            continue
+        _voxel_add_table(out, np.intp(y[j]) * width + np.intp(x[j]), np.intp(p[j]), t[j] - t_start, hw, lo_at,
+                         w_lo, w_hi)
+
+
+# Overlapping windows count their events for the frame and add them to the voxel grid in one pass: the
+# events are read once, while in cache (two passes measured ~1.4 ns an event more).
+@njit(cache=True, nogil=True)
+def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_at, w_lo, w_hi, counts, out):
+    """`accumulate` (the frame's saturating counts of the counted events [a, b); returns how many) and
+    `voxel_table_of_chunk` over the same events, in one pass."""
+    added = 0
+    for k in range(a, b):
+        i = ix(k)
+        if use_cls and cls[i] != 0:
+            continue
+        pix = np.intp(y[i]) * width + np.intp(x[i])
+        on = np.intp(p[i])
+        f = ix(on * hw + pix)
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+        added += 1
+        _voxel_add_table(out, pix, on, t[i] - t_start, hw, lo_at, w_lo, w_hi)
+    return added
+
+
+@njit(cache=True, nogil=True)
+def voxel_count_flat(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, counts, out):
+    """`add_flat` (saturating counts) and `voxel_table_kernel` over the same buffered events, in one pass."""
+    for j in range(len(buf_t)):
+        f = np.intp(buf_f[j])
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+        on = np.intp(f >= hw)
+        _voxel_add_table(out, f - hw * on, on, buf_t[j] - t_start, hw, lo_at, w_lo, w_hi)
 
 
 @njit(cache=True, nogil=True)
@@ -267,9 +355,13 @@ class RepresentationFramer(FramerBase):
         self.geometry = None
         self._buf: _EventBuffer | None = None
         self._assigned = 0  # fn: absolute index of the first buffered event no emitted window holds
-        # Fixed time windows lie on a grid known from the first event: a subclass with `_add` adds each
-        # event to its window's array as it arrives (no buffer, no second pass). Arrays by window start.
-        self._direct = self.window == "fw" and type(self)._add is not RepresentationFramer._add
+        # Windows whose span is known when they open (fixed time ones lie on a grid known from the first
+        # event; an overlapping one opens when the previous one closes): a subclass with `_add` adds each
+        # event to its window's array as it arrives (no buffer of its own, no second pass). Arrays by
+        # window start. Fixed-count windows learn their span only when they close: they buffer.
+        self._direct = self.window != "fn" and type(self)._add is not RepresentationFramer._add
+        if self._direct and self.window != "fw":
+            self.inner.follower = self  # it calls `add` and `carry` as it counts
         self._open: dict[int, np.ndarray] = {}
         self._grid_us: int | None = None  # start of the first window
 
@@ -287,7 +379,8 @@ class RepresentationFramer(FramerBase):
             if self.needs_events:
                 cls, use_cls = self._cls(chunk)
                 if self._direct:
-                    self._add_to_windows(chunk, cls, use_cls)
+                    if self.window == "fw":
+                        self._add_to_windows(chunk, cls, use_cls)
                 else:
                     self._buf.append(chunk, cls, use_cls, self._width, self._hw)
         out = self._represent(self.inner.push(chunk))
@@ -314,9 +407,45 @@ class RepresentationFramer(FramerBase):
                       data.reshape(-1))
             i = j
 
+    def add(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, t_start: int, t_end: int, counts) -> int:
+        """Overlapping windows (called by the windowing framer, see `SlidingFramer.follower`): the chunk's
+        events [a, b) go into the window [t_start, t_end) and its `counts`; returns how many counted."""
+        out = self._window_data(t_start)
+        n = self._count_add(chunk, cls, use_cls, a, b, t_start, t_end, counts, out)
+        if n is not None:
+            return n
+        self._add(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls, t_start, t_end, out)
+        return accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, a, b, counts, self._width, self._hw)
+
+    def add_flat(self, t: np.ndarray, f: np.ndarray, t_start: int, t_end: int, counts) -> None:
+        """Overlapping windows (called by the windowing framer): counted events (times, flat indices, in
+        stream order) go into the window [t_start, t_end) and its `counts`."""
+        out = self._window_data(t_start)
+        if not self._count_add_flat(t, f, t_start, t_end, counts, out):
+            self._add_flat(t, f, t_start, t_end, out)
+            add_flat(counts, f, 0, len(f))
+
+    def _window_data(self, t_start: int) -> np.ndarray:
+        """The flat array of the window starting at t_start (new, zeroed, at its first event)."""
+        data = self._open.get(t_start)
+        if data is None:
+            data = self._open[t_start] = self._new_data(len(self.channels))
+        return data.reshape(-1)
+
+    def _count_add(self, chunk, cls, use_cls, a, b, t_start, t_end, counts, out) -> int | None:
+        """`add` in one pass where a subclass has a kernel for it (how many counted), else None."""
+        return None
+
+    def _count_add_flat(self, t, f, t_start, t_end, counts, out) -> bool:
+        """`add_flat` in one pass where a subclass has a kernel for it (True), else False."""
+        return False
+
     def _add(self, t, x, y, p, cls, use_cls: bool, t_start: int, t_end: int, out: np.ndarray) -> None:
         """Add events (slices of a chunk's fields, all in the window [t_start, t_end)) to its flat array
         `out`: the counted ones, `cls` 0, when `use_cls`."""
+
+    def _add_flat(self, t, f, t_start: int, t_end: int, out: np.ndarray) -> None:
+        """Add counted events (times, flat indices p·H·W + y·W + x), all in [t_start, t_end), to `out`."""
 
     def finish(self) -> list[Representation]:
         out = self._represent(self.inner.finish())
@@ -364,8 +493,9 @@ class RepresentationFramer(FramerBase):
         return a, buf.index_of_time(fr.t_end, a)
 
     def _forget(self) -> None:
-        """Drop the buffered events no open or future window can hold (fixed time windows: the arrays of
-        windows the framer has passed without emitting them, which held no counted event)."""
+        """Drop the buffered events no open or future window can hold (windows whose events go straight
+        into their arrays: the arrays of windows the framer has passed without emitting them, which
+        held no counted event)."""
         if self._direct:
             start = self.inner.start
             for s in [s for s in self._open if start is None or s < start]:
@@ -445,10 +575,13 @@ class TimestampImage(RepresentationFramer):
     def _add(self, t, x, y, p, cls, use_cls, t_start, t_end, out):
         timestamp_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, self._width, self._hw, out)
 
+    def _add_flat(self, t, f, t_start, t_end, out):
+        timestamp_kernel(t, f, t_start, t_end, out)
+
     def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
         out = self._new_data(2)
         la, lb = self._local(a, b)
-        timestamp_kernel(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, out.reshape(-1))
+        self._add_flat(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, out.reshape(-1))
         return out
 
 
@@ -467,14 +600,53 @@ class VoxelGrid(RepresentationFramer):
     def channels_of(self) -> tuple:
         return tuple(f"bin{b}" for b in range(self.bins))
 
+    def _on_geometry(self) -> None:
+        self._tab, self._tab_span = None, None
+
     def _add(self, t, x, y, p, cls, use_cls, t_start, t_end, out):
-        voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, self.bins, self._width, self._hw, out)
+        table = self._table(t_end - t_start)
+        if table is None:
+            voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, self.bins, self._width, self._hw, out)
+        else:
+            voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, self._width, self._hw, *table, out)
+
+    def _add_flat(self, t, f, t_start, t_end, out):
+        table = self._table(t_end - t_start)
+        if table is None:
+            voxel_kernel(t, f, t_start, t_end, self.bins, self._hw, out)
+        else:
+            voxel_table_kernel(t, f, t_start, self._hw, *table, out)
+
+    def _count_add(self, chunk, cls, use_cls, a, b, t_start, t_end, counts, out):
+        table = self._table(t_end - t_start)
+        if table is None:
+            return None
+        return voxel_count_of_chunk(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, a, b, t_start, self._width,
+                                    self._hw, *table, counts, out)
+
+    def _count_add_flat(self, t, f, t_start, t_end, counts, out):
+        table = self._table(t_end - t_start)
+        if table is None:
+            return False
+        voxel_count_flat(t, f, t_start, self._hw, *table, counts, out)
+        return True
+
+    def _table(self, span_us: int):
+        """The arithmetic table of windows `span_us` long (`voxel_table`), for windows whose span is known
+        when they open (all of one span); None for fixed-count windows and spans over VOXEL_TABLE_MAX_US."""
+        if self.window == "fn" or span_us > VOXEL_TABLE_MAX_US:
+            return None
+        if self._tab_span != span_us:
+            lo_at = np.empty(span_us, np.intp)
+            w_lo, w_hi = np.empty(2 * span_us, np.float32), np.empty(2 * span_us, np.float32)
+            voxel_table(span_us, self.bins, self._hw, lo_at, w_lo, w_hi)
+            self._tab, self._tab_span = (lo_at, w_lo, w_hi), span_us
+        return self._tab
 
     def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
         out = self._new_data(self.bins)
         la, lb = self._local(a, b)
-        voxel_kernel(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, self.bins, self._hw,
-                     out.reshape(-1))
+        self._add_flat(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, out.reshape(-1))
         return out
 
 

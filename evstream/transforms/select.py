@@ -141,12 +141,12 @@ class RateLimit(Transform):
 class TimeRangeSource:
     """The events of `source` with `start_us` <= t < `end_us` (None: open on that side), as a source.
 
-    A reader that can seek (it has `set_time_range(start_us, end_us)` and returns True: RAW EVT 2/3,
-    .npy, .mat, evstream MCAP archives) starts at the range itself, with the events reading from the
-    start would give; any other is decoded from its start. Either way the range is filtered here.
-    Either way reading stops at the first chunk whose watermark reaches `end_us` (nothing later can be
-    in range), and the last chunk's watermark is capped at `end_us`, so no frame past the range is
-    closed by the watermark. Every other attribute (geometry, fraction_read, info) is the source's."""
+    A reader that can seek (it has `set_time_range(start_us, end_us)` and returns True: RAW EVT 2/3, .npy, .mat,
+    native .npz with a seek index, evstream MCAP archives) starts at the range itself, with the events reading from
+    the start would give; any other is decoded from its start. Either way the range is filtered here. Either way
+    reading stops at the first chunk whose watermark reaches `end_us` (nothing later can be in range), and the last
+    chunk's watermark is capped at `end_us`, so no frame past the range is closed by the watermark. Every other
+    attribute (geometry, fraction_read, info) is the source's."""
 
     def __init__(self, source, start_us: int | None = None, end_us: int | None = None):
         self._range = TimeRange(start_us, end_us)
@@ -162,6 +162,7 @@ class TimeRangeSource:
         end = self.end_us
         started = False
         span = None  # the first and last times read, for the warning below
+        failed = False
         try:
             for chunk in self.source:
                 if len(chunk):
@@ -175,8 +176,11 @@ class TimeRangeSource:
                     yield out
                 if done:
                     return
+        except Exception:
+            failed = True  # the error is the news (a damaged file), not an empty range
+            raise
         finally:
-            if not started and (span is not None or self.seeks):
+            if not started and not failed and (span is not None or self.seeks):
                 self._warn_empty(span)
 
     def _warn_empty(self, span) -> None:

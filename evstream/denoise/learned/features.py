@@ -18,10 +18,11 @@ For event m at (x, y, t, p), from the events before it only (FEATURES, version F
   pixel was active in — DC_own for m's pixel, DC_nb the mean over its 8 neighbours (off-sensor
   neighbours count as never active). A hot pixel is active in nearly every bin, its neighbours not.
 
-State, all bounded (O(W·H + events per 20 ms + activations per 256 ms)): one int64 word per pixel
-(last tick and polarity, 20 ms count, DC count and last active bin: the 8 neighbours cost one read
-each), a row-summed count map packing all and ON counts (`rowsum`), block counts, the FIFO of the
-window's events and the FIFO of the DC activations.
+State, all bounded (O(W·H + events per 20 ms)): one int64 word per pixel (last tick and polarity,
+20 ms count, last active DC bin) and one int64 bitmap of its active bins (bit k: active in the bin k
+before its last), read for the pixel and its 8 neighbours in one vector pass (neighbours.py); a
+row-summed count map packing all and ON counts (`rowsum`), block counts, and the FIFO of the window's
+events. The DC components need no FIFO: a bitmap shifted by the bins elapsed drops the old bins.
 
 After the model, two rules (a linear score cannot express either) make an event a HOT_PIXEL (score
 HOT_SCORE): its pixel fired `hot_min` (4) times or more in the last 20 ms and more than a third of its
@@ -44,6 +45,7 @@ from numba import njit
 
 from ...nowrap import ix
 from ..rowsum import column_sum, padded_map, row_add
+from .neighbours import SUPPORT_TICKS, nb8_support
 
 FEATURE_VERSION = 2
 FEATURES = (
@@ -55,7 +57,6 @@ RADIUS_PX = 2          # the 5×5 box
 WINDOW_US = 20_000     # the counts' window
 BLOCK_PX = 16          # the block reference
 TICK_US = 16           # the last-event map's time unit: neighbour ages in whole ticks
-SUPPORT_TICKS = (125, 625, 3125)  # 2, 10, 50 ms: nb8 any, nb8 same, nb8 same
 BIN_US = 4_000         # DC: activity bins of 4 ms (the paper's fs = 250 Hz) ...
 N_BINS = 64            # ... 64 of them (256 ms)
 HISTORY_US = N_BINS * BIN_US  # the longest time a feature looks back
@@ -75,9 +76,8 @@ AGE_LOG1P_MS = np.log1p(np.arange(AGE_CELLS, dtype=np.float64) * (TICK_US << AGE
 # One int64 word per pixel (padded like the count map) holds everything read about a pixel, so that
 # the 8 neighbours cost one read each: bits 0-31 (tick << 1) | polarity of its last event, the tick
 # counted from `base` (0 = never); 32-47 its event count in the last 20 ms; 48-55 its last active DC bin
-# modulo 256; 56-62 its active bins among the last N_BINS.
+# modulo 256 (with `bins`, its bitmap, this gives its DC component: neighbours.py).
 OWN_ONE = 1 << 32
-DC_ONE = 1 << 56
 
 
 def block_log_scale(width: int, height: int) -> np.ndarray:
@@ -104,9 +104,7 @@ def new_state(width: int, height: int) -> dict:
         "fifo_t": np.zeros(cap, np.int64),   # the 20 ms window's events: time ...
         "fifo_pos": np.zeros(cap, np.int64),  # ... and count-map row | polarity << 32 | block << 33
         "fifo_state": np.zeros(2, np.int64),  # head, size
-        "dc_pos": np.zeros(cap, np.int32),    # DC activations (the pixel's word index) in bin order
-        "dc_per_bin": np.zeros(N_BINS, np.int64),
-        "dc_state": np.zeros(2, np.int64),    # head, size
+        "bins": np.zeros((height + 2 * r) * wp, np.int64),  # per pixel: its active DC bins, a bitmap
         "clock": np.array([0, 0, 0], np.int64),  # tick base, current DC bin, 1 once started
     }
 
@@ -135,39 +133,32 @@ def _rebase(word, shift):
 def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_live: bool):
     """The kernel for one configuration: `n_hidden` 0 scores with a logistic model (w1[0], b1[0]),
     else with a ReLU layer of `n_hidden` units (w1, b1) and an output layer (w2, b2). The features are
-    scalars (registers), the neighbour reads unrolled with constant offsets, the FIFO stores each
+    scalars (registers), the 8 neighbours one vector pass (neighbours.py), the FIFO stores each
     event's block and polarity with its map row (no division on expiry)."""
     L = 2 * RADIUS_PX + 1
     R = RADIUS_PX
 
     @njit(cache=True, nogil=True, fastmath=True)
     def kernel(t, x, y, p, start, codes, threshold, hot_min, dc_margin, word, hsum, block, blog, wp,
-               fifo_t, fifo_pos, fifo_state, dc_pos, dc_per_bin, dc_state, clock, width, height,
+               fifo_t, fifo_pos, fifo_state, bins, clock, width, height,
                w1, b1, w2, b2, out_score, out_feat, log1p, age_log1p):
         """Score events `start..` whose code is SIGNAL: BACKGROUND below `threshold`, HOT_PIXEL by either
         hot-pixel rule (module docstring). Returns the index reached: len(t) unless a FIFO is full (the
-        caller grows both and calls again from there)."""
+        caller grows it and calls again from there)."""
         cap = len(fifo_t)
         mask = cap - 1
         head = fifo_state[0]
         size = fifo_state[1]
-        dcap = len(dc_pos)
-        dmask = dcap - 1
-        dhead = dc_state[0]
-        dsize = dc_state[1]
         base = clock[0]
         b = clock[1]
         started = clock[2]
         bin_start = b * BIN_US
-        bin_end = bin_start + BIN_US
-        b8 = b & 0xFF
-        b_slot = b % N_BINS
         bw = (width + 15) // 16
         log_global_scale = math.log(25.0 / (width * height))
         n = len(t)
         i = start
         while i < n:
-            stop = min(n, i + cap - size, i + dcap - dsize)  # each event pushes at most one per FIFO
+            stop = min(n, i + cap - size)  # each event pushes at most one: no full-FIFO test inside
             if stop == i:
                 break
             while i < stop:
@@ -192,20 +183,9 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                     block[ix(e >> 33)] -= 1
                     head = (head + 1) & mask
                     size -= 1
-                if ti >= bin_end or ti < bin_start:  # a new DC bin: a division, and bins leave the window
-                    nb = ti // BIN_US
-                    for old in range(max(b - N_BINS + 1, nb - 2 * N_BINS + 1), nb - N_BINS + 1):
-                        k_old = old % N_BINS
-                        for _ in range(dc_per_bin[ix(k_old)]):
-                            word[ix(dc_pos[ix(dhead)])] -= DC_ONE
-                            dhead = (dhead + 1) & dmask
-                            dsize -= 1
-                        dc_per_bin[ix(k_old)] = 0
-                    b = nb
-                    b8 = b & 0xFF
-                    b_slot = b % N_BINS
+                if np.uint64(ti - bin_start) >= np.uint64(BIN_US):  # another DC bin: a division
+                    b = ti // BIN_US
                     bin_start = b * BIN_US
-                    bin_end = bin_start + BIN_US
                 xi = np.intp(x[ix(i)])
                 yi = np.intp(y[ix(i)])
                 pi = np.intp(p[ix(i)])
@@ -216,25 +196,15 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 n0 = n_all - n1
                 bk = (yi >> 4) * bw + (xi >> 4)
                 centre = corner + R * wp + R
-                s2 = 0
-                s10 = 0
-                s50 = 0
-                dc_nb = 0
-                for q in (centre - wp - 1, centre - wp, centre - wp + 1, centre - 1, centre + 1,
-                          centre + wp - 1, centre + wp, centre + wp + 1):
-                    v = word[ix(q)]
-                    tf = v & 0xFFFFFFFF
-                    age = tick - (tf >> 1)  # >= 0
-                    same = ((tf ^ pi) & 1) ^ 1
-                    # integer arithmetic, not comparisons: numba keeps each bool in its own stack byte
-                    # (measured 2.5x slower for the whole kernel); (a - c) >> 63 is -1 iff a < c
-                    s2 -= (age - 125) >> 63
-                    s10 += ((age - 625) >> 63) & same
-                    s50 += ((age - 3125) >> 63) & same
-                    dc_nb += v >> 56
+                # the pixel and its 8 neighbours in one vector pass (neighbours.py)
+                nb, own_bins = nb8_support(word, bins, centre, wp, tick, pi, b & 0xFF)
+                s2 = nb & 0xFFF
+                s10 = (nb >> 12) & 0xFFF
+                s50 = (nb >> 24) & 0xFFF
+                dc_nb = (nb >> 36) & 0xFFF
+                dc_own = nb >> 48
                 w = word[ix(centre)]
                 own_c = (w >> 32) & 0xFFFF
-                dc_own = w >> 56
                 age_own = tick - ((w & 0xFFFFFFFF) >> 1)
                 f0 = log1p[ix(n_all)]  # < 65536: the 16-bit fields they are kept in
                 f1 = log1p[ix(n1 if pi else n0)]
@@ -286,18 +256,11 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 fifo_t[ix(slot)] = ti
                 fifo_pos[ix(slot)] = pos | (pi << 32) | (bk << 33)
                 size += 1
-                # the pixel's first event in bin b activates it (its last active bin equals b modulo 256
-                # either because it is b or because it has been idle >= 256 > N_BINS bins: count 0)
-                new = (((w >> 48) & 0xFF) != b8) | (dc_own == 0)
-                dc_pos[ix((dhead + dsize) & dmask)] = np.int32(centre)
-                dsize += new
-                dc_per_bin[ix(b_slot)] += new
-                word[ix(centre)] = ((dc_own + new) << 56) | (b8 << 48) | ((own_c + 1) << 32) | (tick << 1) | pi
+                bins[ix(centre)] = own_bins | 1  # active in bin b
+                word[ix(centre)] = ((b & 0xFF) << 48) | ((own_c + 1) << 32) | (tick << 1) | pi
                 i += 1
         fifo_state[0] = head
         fifo_state[1] = size
-        dc_state[0] = dhead
-        dc_state[1] = dsize
         clock[0] = base
         clock[1] = b
         clock[2] = started

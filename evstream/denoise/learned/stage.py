@@ -67,26 +67,23 @@ class LearnedFilter(InPlaceClassifier):
              features: np.ndarray | None = None) -> np.ndarray:
         s = self._state
         g = chunk.geometry
-        if s is None or s["geometry"] != g:
+        if s is None or (s["geometry"] is not g and s["geometry"] != g):
             s = self._state = {**new_state(g.width, g.height), "geometry": g}
         n = len(chunk)
-        score = np.zeros(n if want_score else 0, np.float64)
-        feats = features if features is not None else np.zeros((0, N_FEATURES))
+        score = np.zeros(n, np.float64) if want_score else _NO_SCORE
+        feats = features if features is not None else _NO_FEATURES
         w1, b1, w2, b2 = self._weights
         kernel = feature_kernel(self._model.n_hidden, want_score, features is not None, not codes.any())
         i = 0
         while True:
             i = kernel(chunk.t, chunk.x, chunk.y, chunk.p, i, codes, self._threshold, self.hot_min,
                        self._dc_margin, s["word"], s["hsum"], s["block"], s["block_log_scale"],
-                       s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["dc_pos"],
-                       s["dc_per_bin"], s["dc_state"], s["clock"], g.width, g.height, w1, b1, w2, b2,
+                       s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["bins"],
+                       s["clock"], g.width, g.height, w1, b1, w2, b2,
                        score, feats, LOG1P, AGE_LOG1P_MS)
             if i >= n:
                 return score
-            if s["fifo_state"][1] == len(s["fifo_t"]):
-                grow_fifo(s, ("fifo_t", "fifo_pos"))
-            if s["dc_state"][1] == len(s["dc_pos"]):
-                grow_fifo(s, ("dc_pos",), "dc_state")
+            grow_fifo(s, ("fifo_t", "fifo_pos"))
 
     def features(self, chunk: EventChunk) -> np.ndarray:
         """The feature matrix of an unclassified chunk (advances the state like `classify`)."""
@@ -94,3 +91,7 @@ class LearnedFilter(InPlaceClassifier):
         out = np.zeros((len(chunk), N_FEATURES))
         self._run(chunk, codes, want_score=False, features=out)
         return out
+
+
+_NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without scores or features never touch these
+_NO_FEATURES = np.zeros((0, N_FEATURES), np.float64)

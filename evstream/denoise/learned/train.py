@@ -210,13 +210,16 @@ def _keep_at(model: Model, S: Samples, thresholds: np.ndarray) -> np.ndarray:
     return np.mean([(s[:, None] >= thresholds[None, :]).mean(axis=0) for s in _signal_scores(model, S)], axis=0)
 
 
-def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model) -> tuple[np.ndarray, dict]:
+def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model,
+              rows: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Thresholds of `final` for KEEP_GRID that transfer to recordings it was not fitted on.
 
     With one recording: the training quantiles themselves. With more: for each recording, a model fitted
     on the others gives the signal kept on it at each of that model's own training thresholds; the
-    training level l(k) whose held-out keep averages k is then applied to `final`'s training scores."""
-    own_levels = np.median(_fold_levels(final, S, KEEP_GRID), axis=0)
+    training level l(k) whose held-out keep averages k is then applied to `final`'s training scores.
+    `rows`: the rows whose signal the quantiles are taken on (default all; the fits use all rows)."""
+    C = S if rows is None else S.subset(rows)
+    own_levels = np.median(_fold_levels(final, C, KEEP_GRID), axis=0)
     groups = np.unique(S.group)
     if len(groups) < 2:
         return own_levels, {"calibration": "training quantiles (one recording)"}
@@ -224,14 +227,13 @@ def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model) -> tu
     held = []
     for g in groups:
         fold = _fit(S.subset(S.group != g), kind, hidden, seed)
-        train_part = S.subset(S.group != g)
-        thr = np.median(_fold_levels(fold, train_part, fine), axis=0)
-        held.append(_keep_at(fold, S.subset(S.group == g), thr))
+        thr = np.median(_fold_levels(fold, C.subset(C.group != g), fine), axis=0)
+        held.append(_keep_at(fold, C.subset(C.group == g), thr))
     held_keep = np.mean(held, axis=0)  # held-out keep at each training-level keep in `fine`
     # monotone: a higher training keep never lowers the held-out keep
     held_keep = np.maximum.accumulate(held_keep)
     level = np.interp(KEEP_GRID, held_keep, fine)
-    final_thr = np.median(_fold_levels(final, S, level), axis=0)
+    final_thr = np.median(_fold_levels(final, C, level), axis=0)
     info = {"calibration": "cross-fitted over recordings",
             "held_out_keep_at_training_keep": {f"{k:.2f}": round(float(np.interp(k, fine, held_keep)), 4)
                                                for k in (0.8, 0.85, 0.9)}}
@@ -245,11 +247,12 @@ def auc(score: np.ndarray, y: np.ndarray) -> float:
 
 
 def fit(S: Samples, kind: str = "logistic", hidden: int = 16, keep: float = 0.85, seed: int = 0,
-        calibrate_folds: bool = True) -> Model:
-    """A model fitted on all samples, its operating points calibrated (see `calibrate`)."""
+        calibrate_folds: bool = True, calibrate_rows: np.ndarray | None = None) -> Model:
+    """A model fitted on all samples, its operating points calibrated (see `calibrate`; its quantiles
+    taken on `calibrate_rows`, default all)."""
     model = _fit(S, kind, hidden, seed)
     if calibrate_folds:
-        thr, info = calibrate(S, kind, hidden, seed, model)
+        thr, info = calibrate(S, kind, hidden, seed, model, calibrate_rows)
     else:
         thr, info = np.median(_fold_levels(model, S, KEEP_GRID), axis=0), {"calibration": "training quantiles"}
     model.threshold_grid = np.asarray(thr, np.float32).astype(np.float64)
