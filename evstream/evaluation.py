@@ -18,7 +18,9 @@ Protocol (docs/evaluation.md):
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable, Iterable
+from pathlib import Path
 
 import numpy as np
 
@@ -350,8 +352,13 @@ def plot_roc(curves: dict, condition: str, path) -> None:
         ax.axis("off")
     axes.flat[0].legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    from .safe_write import AtomicOutput
+
+    try:
+        with AtomicOutput(path) as part:  # never in place; the format from the target's name, not the temporary's
+            fig.savefig(part, dpi=90, format=Path(os.fspath(path)).suffix.lstrip(".").lower() or "png")
+    finally:
+        plt.close(fig)
 
 
 def as_json_rows(rows: list[dict]) -> list[dict]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import builtins
 import os
+import re
 import struct
 import sys
 from collections.abc import Iterator
@@ -51,7 +52,7 @@ class Aedat4Source(FileSource):
         except _DECODER_ERRORS as e:  # the Rust decoder raises plain exceptions with its reason, or panics
             if isinstance(e, _NOT_OURS):
                 raise
-            raise self.error(f"unreadable AEDAT4 file: {_reason(e)}") from None
+            raise self._decoder_error(_reason(e)) from None
         events = {k: v for k, v in streams.items() if v.get("type") == "events"}
         if not events:
             raise self.error(f"no event stream (streams: { {k: v.get('type') for k, v in streams.items()} })")
@@ -64,12 +65,27 @@ class Aedat4Source(FileSource):
         self.details = {"streams": {int(k): v.get("type") for k, v in streams.items()},
                         "stream_id": self.stream_id}
 
+    def _decoder_error(self, reason: str):
+        """The decoder's error as ours; its XML parser says where as LINE:COLUMN of the stream description,
+        turned here into the file's byte (a flipped byte there named no offset)."""
+        m = re.search(r" at (\d+):(\d+)$", reason)
+        if m is None or not self._info:
+            return self.error(f"unreadable AEDAT4 file: {reason}")
+        line, column = int(m.group(1)), int(m.group(2))
+        at = 0
+        for _ in range(line - 1):
+            at = self._info.find(b"\n", at) + 1
+            if at == 0:
+                return self.error(f"unreadable AEDAT4 file: {reason}")
+        return self.error(f"corrupt AEDAT4 header: its stream description (XML) is malformed: {reason[:m.start()]}",
+                          offset=self._info_at + at + column - 1)
+
     def _check_description(self) -> None:
         """Check the header before the Rust decoder reads it: it follows the header's flatbuffer offsets
         unchecked, and one flipped byte there (an offset, or the XML description no longer UTF-8) made it
         panic (a Rust traceback on stderr) instead of saying where. Keeps where the packets start and
         the file data table's position (`_packets_at`, `_table_at`) for `_chain_break`."""
-        self._packets_at, self._table_at, self._info_at = None, -1, _HEADER_OFFSET
+        self._packets_at, self._table_at, self._info_at, self._info = None, -1, _HEADER_OFFSET, b""
         self._packet_at: list[int] = []
         with builtins.open(self.path, "rb") as f:
             head = f.read(_HEADER_OFFSET)
@@ -80,6 +96,7 @@ class Aedat4Source(FileSource):
             raise self.error(f"truncated in its header{claim}: the file ends at byte {self.file_size}")
         self._packets_at = _HEADER_OFFSET + size
         info, self._table_at = self._header_fields(header)
+        self._info = info
         start, end = info.find(b"<"), info.rfind(b">")
         if start < 0 or end < start:
             return

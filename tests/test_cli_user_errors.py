@@ -417,6 +417,21 @@ def test_an_aedat4_header_byte_flipped_names_the_byte_not_a_rust_panic(tmp_path,
                     "is not UTF-8 (invalid start byte)")
 
 
+def test_an_aedat4_stream_description_broken_by_a_flipped_byte_names_the_byte(tmp_path, real_data):
+    """The decoder's XML parser said where as LINE:COLUMN of the stream description ('expected '=' not '"' at
+    7:22'), which names no byte of the file."""
+    data = bytearray((real_data / "davis346_frames_imu_evlib.aedat4").read_bytes())
+    at = data.index(b'key="compression"') + 3  # the '=' of an attribute in the XML description
+    data[at] = ord('"')
+    bad = tmp_path / "xml.aedat4"
+    bad.write_bytes(bytes(data))
+    r = subprocess.run([sys.executable, "-m", "evstream.cli", "info", bad], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 1, r.stderr
+    assert one_line_error(r.stderr) == (f"evstream: error: {bad} at byte {at}: corrupt AEDAT4 header: its stream "
+                                        """description (XML) is malformed: expected '=' not '"'""")
+
+
 @pytest.mark.parametrize("older", [False, True])
 def test_ctrl_c_in_a_replay_stops_it_with_its_summary_and_the_file_so_far(tmp_path, older):
     """Ctrl-C renamed the events so far onto --save's file, replacing an older, whole one. Now that file is

@@ -267,3 +267,43 @@ def test_frames_out_that_fails_leaves_the_folder_as_it_was(tmp_path, capsys):
     assert pngs == [f"frame_{i:06d}.png" for i in range(20)]  # the 10 older ones past the end are gone
     assert all((old / name).read_bytes().startswith(b"\x89PNG") for name in pngs)
     assert (old / "notes.txt").read_text() == "mine" and f"wrote 20 PNG frames to {old}\n" in out
+
+
+def fill(folder: Path) -> None:
+    """Fill the file system `folder` is on, to the last byte."""
+    f = open(folder / "filler", "wb")  # noqa: SIM115 - closing may raise ENOSPC too
+    try:
+        while True:
+            f.write(bytes(4096))
+            f.flush()
+    except OSError:
+        pass
+    try:
+        f.close()
+    except OSError:
+        pass
+
+
+@pytest.mark.parametrize("what", ["synth", "eval --json", "eval --roc"])
+def test_synth_and_eval_outputs_on_a_full_disk_keep_the_older_file(full_disk, capsys, what):
+    """`synth OUT`, `eval --json FILE` and `eval --roc FILE` wrote their file in place: a full disk (or a
+    Ctrl-C) left it empty or cut short, the older file gone."""
+    out = full_disk / {"synth": "s.npz", "eval --json": "rows.json", "eval --roc": "roc.png"}[what]
+    out.write_bytes(b"older")
+    fill(full_disk)
+    argv = {"synth": ["synth", "bar", out, "--duration-ms", "100"],
+            "eval --json": ["eval", SHIPPED, "--methods", "baf", "--ratios", "1.0", "--seeds", "1", "--json", out],
+            "eval --roc": ["eval", SHIPPED, "--methods", "baf", "--ratios", "1.0", "--seeds", "1", "--roc", out]}[what]
+    rc, _, err = run(argv, capsys)
+    assert rc == 1 and "no space left" in one_line_error(err) and str(out) in one_line_error(err)
+    assert out.read_bytes() == b"older"
+    assert sorted(p.name for p in full_disk.iterdir()) == sorted([out.name, "filler"])
+
+
+def test_eval_of_a_named_recording_that_cannot_be_read_is_one_line(tmp_path, capsys):
+    """It printed 'skipping REC: ...' then 'error: no recording to evaluate' and exited 2 (a usage error)."""
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(SHIPPED.read_bytes()[:5000])  # no zip directory
+    rc, _, err = run(["eval", cut, "--methods", "baf", "--ratios", "1.0", "--seeds", "1"], capsys)
+    assert rc == 1, err
+    assert one_line_error(err).startswith(f"evstream: error: {cut}")

@@ -37,7 +37,8 @@ def cmd_synth(args) -> int:
                               t_stop_us=int(args.duration_ms * 1000))
         meta["noise"] = {k: v for k, v in vars(spec).items()}
     created = create_folder(Path(args.out).parent)
-    native.save(args.out, events, meta)
+    with AtomicOutput(args.out) as part:  # never in place: an interrupted synth leaves the old file
+        native.save(part, events, meta)
     counts = events.class_counts("label")
     print(f"wrote {args.out}{folder_note(created)}: {len(events):,} events ({counts[0]:,} signal, "
           f"{counts[1]:,} background, {counts[2]:,} hot pixel)")
@@ -66,11 +67,12 @@ def cmd_eval(args) -> int:
     if not paths and not args.real:
         raise UsageError(f"no recording to evaluate: none given and no recordings/*.npz in {Path.cwd()}; "
                          "name recordings (evstream eval REC ...), add --real DIR, or run from the repository root")
+    named = set(args.recordings)  # a recording the user named and that cannot be read is an error, not a skip
     if args.real:
         paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")
-    recordings = read_recordings(paths, args.min_duration_s, "evstream eval")
+    recordings = read_recordings(paths, args.min_duration_s, "evstream eval", strict=named)
     if not recordings:
-        raise UsageError("no recording to evaluate")
+        raise UsageError("no recording to evaluate: each one was skipped (above)")
     methods = args.methods.split(",") if args.methods else list(evaluation.METHODS)
     if args.no_reference:
         return _no_reference(recordings, methods)
@@ -90,8 +92,7 @@ def cmd_eval(args) -> int:
         progress.done()
     print(evaluation.markdown(rows, tune=args.tune) if args.markdown else evaluation.report(rows, tune=args.tune))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(evaluation.as_json_rows(rows), indent=1))
+        write_json_rows(args.json, rows)
         print(f"wrote {args.json} ({len(rows)} rows)")
     if args.roc:
         try:
@@ -103,6 +104,15 @@ def cmd_eval(args) -> int:
             print("evstream eval: matplotlib is not installed; no ROC plot (pip install matplotlib)",
                   file=sys.stderr)
     return 0
+
+
+def write_json_rows(out: str, rows) -> None:
+    """`--json FILE`: the result rows, written beside FILE and renamed when whole (never in place)."""
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    from .. import evaluation
+
+    with AtomicOutput(out, flag="--json ") as part:
+        part.write_text(json.dumps(evaluation.as_json_rows(rows), indent=1))
 
 
 EVAL_SUFFIX = ".eval.json"  # a recording's result rows, written whole: a re-run skips the recording
@@ -155,8 +165,7 @@ def _eval_many(args) -> int:
         print(evaluation.markdown(rows, tune=args.tune) if args.markdown else evaluation.report(rows, tune=args.tune))
     print(table(results))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(evaluation.as_json_rows(rows), indent=1))
+        write_json_rows(args.json, rows)
         print(f"wrote {args.json} ({len(rows)} rows)")
     return 1 if any(r.status == "failed" for r in results) else 0
 
@@ -205,17 +214,18 @@ def _no_reference(recordings: dict, methods: list[str]) -> int:
     return 0
 
 
-def read_recordings(paths, min_duration_s: float, command: str, strict: bool = False) -> dict:
+def read_recordings(paths, min_duration_s: float, command: str, strict: bool | set = False) -> dict:
     """{name: events} of every readable recording in `paths`, saying on stderr which are skipped and why
     (unreadable, shorter than `min_duration_s`, a converted twin of a recording already read).
-    `strict`: an unreadable recording is an error, not a skip (the user named it)."""
+    `strict` (True, or the set of paths it applies to): an unreadable recording is an error, not a skip
+    (the user named it; a folder's other files are skipped)."""
     recordings = {}
     seen = set()  # (events, first t, last t): a converted twin of a file already read is skipped
     for path in paths:
         try:
             events = _read_all(path)
         except (EventError, OSError, ValueError) as e:
-            if strict:
+            if strict is True or (isinstance(strict, set) and path in strict):
                 raise
             print(f"{command}: skipping {path}: {e}", file=sys.stderr)
             continue
