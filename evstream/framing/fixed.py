@@ -84,6 +84,9 @@ class FixedWindow(FramerBase):
     window_us: int = 10_000
     all_events: bool = False
     max_empty_frames: int = 1000
+    # A representation framer may count the frames' events itself while it adds them to its arrays, in
+    # one pass: `follower.add(chunk, cls, use_cls, a, b, start, end, counts)`, as `SlidingFramer.follower`.
+    follower = None  # not annotated: a class attribute, not a parameter
 
     def __post_init__(self):
         check_positive_int(self, "window_us")
@@ -112,8 +115,11 @@ class FixedWindow(FramerBase):
             i = 0
             while True:
                 stop = i + int(np.searchsorted(t[i:], self.end, side="left"))
-                self.n += accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, i, stop, self.counts,
-                                     self._width, self._hw)
+                if self.follower is None:
+                    self.n += accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, i, stop, self.counts,
+                                         self._width, self._hw)
+                elif stop > i:
+                    self.n += self.follower.add(chunk, cls, use_cls, i, stop, self.start, self.end, self.counts)
                 i = stop
                 if i == len(chunk):
                     break

@@ -355,15 +355,14 @@ class RepresentationFramer(FramerBase):
         self.geometry = None
         self._buf: _EventBuffer | None = None
         self._assigned = 0  # fn: absolute index of the first buffered event no emitted window holds
-        # Windows whose span is known when they open (fixed time ones lie on a grid known from the first
-        # event; an overlapping one opens when the previous one closes): a subclass with `_add` adds each
-        # event to its window's array as it arrives (no buffer of its own, no second pass). Arrays by
-        # window start. Fixed-count windows learn their span only when they close: they buffer.
+        # Windows whose span is known when they open (fixed time and overlapping ones): a subclass with
+        # `_add` adds each event to its window's array as the windowing framer counts it (no buffer of
+        # its own, no second pass). Arrays by window start. Fixed-count windows learn their span only
+        # when they close: they buffer.
         self._direct = self.window != "fn" and type(self)._add is not RepresentationFramer._add
-        if self._direct and self.window != "fw":
-            self.inner.follower = self  # it calls `add` and `carry` as it counts
+        if self._direct:
+            self.inner.follower = self  # it calls `add` and `add_flat` as it counts
         self._open: dict[int, np.ndarray] = {}
-        self._grid_us: int | None = None  # start of the first window
 
     @property
     def channels(self) -> tuple:
@@ -376,40 +375,17 @@ class RepresentationFramer(FramerBase):
     def push(self, chunk: EventChunk) -> list[Representation]:
         if len(chunk) or self.geometry is not None:
             self._geometry(chunk)
-            if self.needs_events:
+            if self.needs_events and not self._direct:
                 cls, use_cls = self._cls(chunk)
-                if self._direct:
-                    if self.window == "fw":
-                        self._add_to_windows(chunk, cls, use_cls)
-                else:
-                    self._buf.append(chunk, cls, use_cls, self._width, self._hw)
+                self._buf.append(chunk, cls, use_cls, self._width, self._hw)
         out = self._represent(self.inner.push(chunk))
         self._forget()
         return out
 
-    def _add_to_windows(self, chunk: EventChunk, cls, use_cls: bool) -> None:
-        """Fixed time windows: add the chunk's events to the arrays of the windows they fall in."""
-        n = len(chunk)
-        if not n:
-            return
-        t = chunk.t
-        if self._grid_us is None:
-            self._grid_us = int(t[0])  # as the fw framer: windows start at the stream's first event
-        w = self.inner.window_us
-        i = 0
-        while i < n:
-            start = self._grid_us + (int(t[i]) - self._grid_us) // w * w
-            j = i + int(np.searchsorted(t[i:], start + w, side="left"))
-            data = self._open.get(start)
-            if data is None:
-                data = self._open[start] = self._new_data(len(self.channels))
-            self._add(chunk.t[i:j], chunk.x[i:j], chunk.y[i:j], chunk.p[i:j], cls[i:j], use_cls, start, start + w,
-                      data.reshape(-1))
-            i = j
-
     def add(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, t_start: int, t_end: int, counts) -> int:
-        """Overlapping windows (called by the windowing framer, see `SlidingFramer.follower`): the chunk's
-        events [a, b) go into the window [t_start, t_end) and its `counts`; returns how many counted."""
+        """Called by the windowing framer as it counts (fw, oa, adaptive; see `SlidingFramer.follower`): the
+        chunk's events [a, b) go into the window [t_start, t_end) and its `counts`; returns how many
+        counted."""
         out = self._window_data(t_start)
         n = self._count_add(chunk, cls, use_cls, a, b, t_start, t_end, counts, out)
         if n is not None:
@@ -419,7 +395,8 @@ class RepresentationFramer(FramerBase):
 
     def add_flat(self, t: np.ndarray, f: np.ndarray, t_start: int, t_end: int, counts) -> None:
         """Overlapping windows (called by the windowing framer): counted events (times, flat indices, in
-        stream order) go into the window [t_start, t_end) and its `counts`."""
+        stream order) go into the window [t_start, t_end) and its `counts`: those it buffers, and those a
+        window opens with."""
         out = self._window_data(t_start)
         if not self._count_add_flat(t, f, t_start, t_end, counts, out):
             self._add_flat(t, f, t_start, t_end, out)
