@@ -307,3 +307,28 @@ def test_eval_of_a_named_recording_that_cannot_be_read_is_one_line(tmp_path, cap
     rc, _, err = run(["eval", cut, "--methods", "baf", "--ratios", "1.0", "--seeds", "1"], capsys)
     assert rc == 1, err
     assert one_line_error(err).startswith(f"evstream: error: {cut}")
+
+
+def test_subscribe_save_writes_each_cameras_recording_beside_its_name_until_the_end(tmp_path):
+    """A second camera's `live.CAM.rrd` was written in place from its first packet: an older file of that
+    name was gone at once, and a killed subscriber left a cut-short one."""
+    import argparse
+
+    from evstream.sinks.rerun_viewer import open_output
+
+    from evstream.cli.subscriber import Subscriber
+
+    for cam in ("a", "b"):
+        (tmp_path / f"live.{cam}.rrd").write_bytes(b"older")
+    node = Subscriber(argparse.Namespace(keyexpr="evstream/*/events"))
+    node.viewer = open_output(save=str(tmp_path / "live.rrd"))
+    try:
+        for cam in ("first", "a", "b"):
+            node.viewer_rec(cam).log("x", __import__("rerun").Scalars(1.0))
+        assert (tmp_path / "live.a.rrd").read_bytes() == b"older" and (tmp_path / "live.b.rrd.part").exists()
+        node.finish_recordings()
+        node.viewer.finish()
+    finally:
+        node.viewer.stop()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["live.a.rrd", "live.b.rrd", "live.rrd"]
+    assert all((tmp_path / f"live.{c}.rrd").read_bytes()[:5] != b"older" for c in "ab")

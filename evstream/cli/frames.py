@@ -50,8 +50,7 @@ def frames_one(args) -> list[dict]:
         raise
     if staging is not None:
         staging.commit()
-        for row in rows:
-            row["created_folder"] = created or None
+        rows[0]["created_folder"] = created or None  # said once, with the first framer's files
     return rows
 
 

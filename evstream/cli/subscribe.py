@@ -120,9 +120,7 @@ def cmd_subscribe(args) -> int:
                 stop_reason = "duration" if deadline is not None and time.monotonic() > deadline else "idle"
     finally:
         status.done()
-        for rec in list(node._recs.values())[1:]:
-            rec.flush()
-            rec.disconnect()
+        node.finish_recordings()
         if node.viewer is not None:
             node.viewer.finish()
         session.close()

@@ -149,6 +149,16 @@ class Subscriber:
         self.viewer = None
         self._recs: dict = {}
         self.saved: list[str] = []  # the .rrd files written (with --save)
+        self._outputs: list = []  # their AtomicOutputs, committed by `finish_recordings`
+
+    def finish_recordings(self) -> None:
+        """End the other cameras' recordings (the first camera's is the viewer's) and put their files in
+        place: a live recording ends whole when the subscriber stops, as the first camera's does."""
+        for rec in list(self._recs.values())[1:]:
+            rec.flush()
+            rec.disconnect()
+        for output in self._outputs:
+            output.commit()
 
     def viewer_rec(self, camera: str):
         """The first camera logs into the viewer's recording; others get recordings of their own."""
@@ -160,9 +170,13 @@ class Subscriber:
             import rerun as rr
 
             rec = rr.RecordingStream("evstream", recording_id=f"evstream-{camera}")
-            if self.viewer.mode == "save":
+            if self.viewer.mode == "save":  # beside its name until the end, as the first camera's (safe_write)
+                from evstream.safe_write import AtomicOutput
+
                 path = str(Path(self.viewer.path).with_suffix(f".{camera}.rrd"))
-                rec.save(path)
+                output = AtomicOutput(path)
+                rec.save(str(output.part))
+                self._outputs.append(output)
                 self.saved.append(path)
             else:
                 rec.connect_grpc(self.viewer.grpc_url)
