@@ -35,7 +35,7 @@ from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
 from .common import is_int
 from .prefetch import FAR_BYTES, prefetch
-from .rowsum import MAX_RADIUS_PX, box_area, column_sum, padded_map, row_add
+from .rowsum import MAX_RADIUS_PX, column_sum, padded_map, row_add
 
 DIFFERENCE, RATIO = 0, 1
 PREFETCH_EVENTS = 8  # how far ahead `far` kernels prefetch (at 1280×720: fine alone 20.9 -> 16.1 ns/event)
@@ -51,7 +51,7 @@ def dc_kernel(options, want_score):
 
     @njit(cache=True, nogil=True)
     def kernel(t, x, y, live, cursor, codes, noise_code, pixel, rowsum, padded_width, fifo_pos, per_bin,
-               fifo_state, bin_us, n_bins, lam, width, height, out_score):
+               fifo_state, bin_us, n_bins, lam, above, span_x, span_y, out_score):
         """For each event still SIGNAL in `codes`: mark its pixel active in the event's bin, compare the
         pixel's active bins with its neighbours' mean, write `noise_code` when hot (and the score if
         `want_score`). The events still SIGNAL are gathered once into `live` (length >= len(t)), then
@@ -69,7 +69,6 @@ def dc_kernel(options, want_score):
         mask = cap - 1
         head = fifo_state[0]
         size = fifo_state[1]
-        lam_bins = lam * n_bins
         b = fifo_state[2]
         bin_start = b * bin_us  # [bin_start, bin_end) is bin b
         bin_end = bin_start + bin_us
@@ -134,10 +133,12 @@ def dc_kernel(options, want_score):
                 fifo_pos[ix(slot)] = pos
                 in_bin += new  # per_bin[b_slot], kept in a register (stored back on a new bin, at the end)
                 size += new
-                n_nb = box_area(xi, yi, radius, width, height) - 1
+                n_nb = span_x[ix(xi)] * span_y[ix(yi)] - 1  # box_area, tabulated per column and row
                 # decisions in whole bins (exact): DC_m - mean > λ  <=>  own·n_nb - active > λ·n·n_nb
                 if form == DIFFERENCE:
-                    hot = own * n_nb - active > lam_bins * n_nb if n_nb > 0 else own > lam_bins
+                    # integers only, the table holding floor(λ·n·n_nb) (`above`); n_nb = 0 (a 1×1 sensor, no
+                    # neighbour: active = 0) reads own > floor(λ·n)
+                    hot = own * max(n_nb, 1) - active > above[ix(n_nb)]
                 else:
                     hot = own * n_nb > lam * active if active > 0 else own > lam  # guard: quiet neighbours
                 codes[ix(i)] = noise_code * hot
@@ -206,7 +207,8 @@ class TimeSeriesFilter(InPlaceClassifier):
         cap = 1 << 12
         return {"geometry": g, "pixel": padded_map(g.width, g.height, r, np.uint16),
                 "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
-                "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64)}
+                "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64),
+                "span_x": _span(g.width, r), "span_y": _span(g.height, r)}
 
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
         """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores. The
@@ -241,7 +243,22 @@ class TimeSeriesFilter(InPlaceClassifier):
         far = s["pixel"].nbytes + s["rowsum"].nbytes > FAR_BYTES
         self._options = (r, DIFFERENCE if self.form == "difference" else RATIO, far)
         self._args = (int(self.noise_class), s["pixel"], s["rowsum"], g.width + 2 * r, s["fifo_pos"], s["per_bin"],
-                      s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), g.width, g.height)
+                      s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), self._above(), s["span_x"],
+                      s["span_y"])
+
+    def _above(self) -> np.ndarray:
+        """The difference form's threshold in whole bins for each neighbour count n_nb: hot iff
+        own·n_nb - active > λ·n·n_nb, i.e. (integers) > floor(λ·n·n_nb), the product computed as the
+        float it was (exact: the same comparison, without a float per event); n_nb = 0: own > λ·n."""
+        lam_bins = float(self.lam) * self.n_bins
+        cells = (2 * self.radius_px + 1) ** 2
+        return np.array([math.floor(lam_bins * k if k else lam_bins) for k in range(cells)], np.int64)
+
+
+def _span(size: int, radius: int) -> np.ndarray:
+    """For each coordinate, how many of the 2r + 1 around it lie on a sensor of `size` (`box_area`'s factors)."""
+    c = np.arange(size, dtype=np.int64)
+    return np.minimum(c + radius, size - 1) - np.maximum(c - radius, 0) + 1
 
 
 _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it
