@@ -56,6 +56,16 @@ def _is_recording(path: Path) -> bool:
             and not name.endswith(".part") and path.is_file())
 
 
+def files_named(inputs: Iterable[str]) -> list[str]:
+    """Every file that paths, folders (walked) and globs name: what a command may read, which no output
+    of it may be."""
+    found = []
+    for given in inputs:
+        for path in glob.glob(given, recursive=True) if GLOB_MAGIC & set(given) else [given]:
+            found += [str(p) for p in Path(path).rglob("*") if p.is_file()] if Path(path).is_dir() else [path]
+    return found
+
+
 def plan(inputs: Iterable[str], out_dir, suffix: str) -> list[Task]:
     """One task per recording: a file goes to OUT/NAME, a folder's recordings (walked, sorted) to
     OUT/PATH-BELOW-THE-FOLDER, a glob's matches to OUT/PATH-BELOW-THE-GLOB'S-FIXED-PART; each with its

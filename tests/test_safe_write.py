@@ -332,3 +332,16 @@ def test_subscribe_save_writes_each_cameras_recording_beside_its_name_until_the_
         node.viewer.stop()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["live.a.rrd", "live.b.rrd", "live.rrd"]
     assert all((tmp_path / f"live.{c}.rrd").read_bytes()[:5] != b"older" for c in "ab")
+
+
+@pytest.mark.parametrize("flag", ["--json", "--roc"])
+def test_eval_never_writes_its_rows_or_plot_over_a_recording_it_reads(tmp_path, capsys, flag):
+    """`eval REC --json REC` wrote the JSON rows over the recording (exit 0); so did a link to it, or a
+    file of the --real folder."""
+    rec = tmp_path / "rec.npz"
+    shutil.copy(SHIPPED, rec)
+    os.symlink(rec, tmp_path / "link.npz")
+    for argv in ([rec, flag, rec], [rec, flag, tmp_path / "link.npz"], ["--real", tmp_path, flag, rec]):
+        rc, _, err = run(["eval", *argv, "--methods", "baf", "--ratios", "1.0", "--seeds", "1"], capsys)
+        assert rc == 2 and "that is the input recording" in one_line_error(err)
+        assert rec.read_bytes() == SHIPPED.read_bytes()

@@ -11,7 +11,7 @@ from .. import api, batch, noise, synth
 from ..events import EventError, Geometry
 from ..safe_write import AtomicOutput
 from .batch import _warm, add_batch_flags, table
-from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note
+from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note, not_the_input
 
 DEFAULT_NOISE_RATIO = 0.5  # what `make recordings` and the README use
 
@@ -49,8 +49,11 @@ def cmd_eval(args) -> int:
     from .. import evaluation
 
     check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
+    inputs = batch.files_named([*args.recordings, *([args.real] if args.real else [])])
     for flag, out in (("--json", args.json), ("--roc", args.roc)):  # before minutes of work, not after
         if out:
+            for path in inputs:  # `eval REC --json REC` wrote the rows over the recording
+                not_the_input(path, out, f"{flag} ")
             try:
                 if not Path(out).parent.exists():
                     Path(out).parent.mkdir(parents=True)
