@@ -4,19 +4,28 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint recordings model mutation clean clean-cache
+.PHONY: demo test bench lint recordings model mutation clean clean-cache aot
 
 # PYTHONWARNINGS: setuptools' "Editable installation" notice is information, not a warning about this project
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(MAKE) --no-print-directory aot
 	touch $(STAMP)
+
+# The everyday commands' kernels compiled ahead of time for this machine (evstream/aot.py): they start without
+# numba. Rebuilt when any source file changed (an edit sets the old module aside: numba compiles instead).
+# Not fatal: without a C compiler the kernels compile with numba at first use, as before.
+SOURCES := $(shell find evstream sources sinks -name '*.py' -not -path '*/__pycache__/*')
+aot: evstream/_aot.json
+evstream/_aot.json: $(SOURCES) pyproject.toml
+	$(BIN)/python -m evstream.aot || echo "evstream.aot failed: numba will compile the kernels at first use"
 
 demo: $(STAMP)
 	$(BIN)/evstream replay recordings/turntable.npz --framer fw --save out/turntable.rrd
 
-test: $(STAMP)
+test: $(STAMP) aot
 	$(BIN)/python -m pytest -q
 
 # Mutation testing (docs/testing.md), not part of CI: hours for all modules on 2 cores.
@@ -50,7 +59,7 @@ model: $(STAMP)
 	    --thin 0.3,0.1,0.03 --without dc_own,dc_nb8 --seed 0 --out evstream/denoise/learned/default_model.npz
 
 clean: clean-cache
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out .pytest_cache evstream/_aot.*
 
 # numba's compiled kernels (its cache misses edits to a helper another module's kernel inlined)
 clean-cache:

@@ -11,7 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from .jit import njit
 
 __all__ = [
     "EVENT_DTYPE",
@@ -183,7 +184,7 @@ class EventChunk:
         has_label = self.label is not None
         out = (np.empty(n + 1, self.t.dtype), np.empty(n + 1, self.x.dtype), np.empty(n + 1, self.y.dtype),
                np.empty(n + 1, self.p.dtype), np.empty(n + 1 if has_label else 0, np.uint8))
-        k = _gather_class(self.cls, c, self.t, self.x, self.y, self.p,
+        k = _gather_class(self.cls, int(c), self.t, self.x, self.y, self.p,  # int(c): one variant for all
                           self.label if has_label else out[4], has_label, *out)
         return dataclasses.replace(self, t=out[0][:k], x=out[1][:k], y=out[2][:k], p=out[3][:k],
                                    cls=np.full(k, c, np.uint8), label=out[4][:k] if has_label else None)

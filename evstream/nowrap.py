@@ -8,7 +8,8 @@ out of bounds.
 """
 
 import numpy as np
-from numba import njit
+
+from .jit import njit
 
 
 @njit(cache=True, nogil=True, inline="always")

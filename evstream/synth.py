@@ -16,9 +16,9 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from .events import EventChunk, Geometry, NoiseClass, concat
+from .jit import njit
 
 DEFAULT_GEOMETRY = Geometry(346, 260)  # DAVIS346, the paper's sensor
 

@@ -13,10 +13,10 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from evstream.events import EventChunk, EventError, Geometry, TimestampPolicy, Validator
+from evstream.jit import njit
 
 DEFAULT_CHUNK_EVENTS = 50_000
 DEFAULT_BLOCK_BYTES = 1 << 20  # larger blocks are no faster and hold more resident memory
@@ -89,7 +89,7 @@ def fit_geometry(max_x: int, max_y: int, sensors: list[Geometry] | None = None) 
     return Geometry(min(MAX_SENSOR_SIDE, max(1, int(max_x) + 1)), min(MAX_SENSOR_SIDE, max(1, int(max_y) + 1)))
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def unwrap_kernel(t_raw, bits, state, out):
     """Unwrap a counter of `bits` bits that wraps: a drop of more than half the range is a wrap.
 
@@ -393,7 +393,7 @@ class _Queue:
         return -1
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _first_at_or_after(t, boundary, start):
     """First index i ≥ start with t[i] ≥ boundary, else -1."""
     for i in range(start, len(t)):

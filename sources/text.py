@@ -16,10 +16,10 @@ import builtins
 import re
 from collections.abc import Iterator
 
-import numba
 import numpy as np
 
 from evstream.events import Geometry
+from evstream.jit import njit
 
 from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, to_events
 
@@ -32,7 +32,7 @@ _SCAN_LIMIT_BYTES = 256 << 20
 _POW10 = np.array([10.0**k for k in range(-40, 41)])
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _number(buf, i, n):
     """Parse a decimal number at buf[i:] (sign, digits, '.', digits, exponent); (value, end, ok)."""
     neg = False
@@ -84,7 +84,7 @@ def _number(buf, i, n):
     return (-v if neg else v), i, True
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _parse_kernel(buf, out):
     """Lines of 4 numbers (space, tab or comma separated) into `out` rows; blank and #, %, // comment
     lines skipped. Returns (rows, byte offset of the first bad line or -1)."""

@@ -18,8 +18,9 @@ Events before the first TIME_HIGH have no time base and are skipped (counted in 
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from ..jit import njit
 
 __all__ = ["Evt2Decoder", "Evt2Encoder", "decode", "encode"]
 
@@ -31,7 +32,7 @@ _HIGH_RANGE = 1 << 28
 _WRAP_MIN_DROP = 1 << 27
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     """Decode all `words` (out arrays hold at least one event per word); returns the event count."""
     high = state[_HIGH]
@@ -153,7 +154,7 @@ class Evt2Decoder:
         return raw[4 * i:].tobytes()
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _skip_kernel(words, state, counters, start_us):
     """The decoder's time base over `words` up to the first TIME_HIGH word whose base + 63 >= start_us;
     returns its index (len(words): none), the state left as before that word."""
@@ -190,7 +191,7 @@ def decode(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 _MAX_HIGH_STEP = _WRAP_MIN_DROP - 1
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _check_kernel(t, x, y, p, prev):
     for i in range(len(t)):
         if t[i] < prev or x[i] > 0x7FF or y[i] > 0x7FF or p[i] > 1:
@@ -199,7 +200,7 @@ def _check_kernel(t, x, y, p, prev):
     return -1
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _encode_kernel(t, x, y, p, out, state):
     """EVT2 words for checked events into `out`; `state[0]` is the last TIME_HIGH written (-1: none)."""
     k = 0

@@ -26,9 +26,9 @@ Events before the first TIME_HIGH have no time base and are skipped (counted in 
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from ..jit import njit
 from ..nowrap import ix
 
 __all__ = ["Evt3Decoder", "Evt3Encoder", "decode", "encode"]
@@ -47,7 +47,7 @@ _WRAP_MIN_DROP = 4096 - 16  # a camera wraps 4095 -> 0; a smaller drop is a step
 _MAX_EVENTS_PER_WORD = 12
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     """Decode `words` into the out arrays until the words or the room run out.
 
@@ -154,7 +154,7 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     return n, i
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _count_other(kind, counters):
     """Words that carry no CD event: triggers, OTHERS, CONTINUED, and unknown types."""
     if kind == 0xA:
@@ -259,7 +259,7 @@ class Evt3Decoder:
         return raw[2 * i:].tobytes()
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _skip_kernel(words, state, counters, start_us):
     """The decoder's state over `words` (events not written) up to the first word that sets the time to
     start_us or later (a TIME_HIGH or TIME_LOW, once there is a time base); returns its index (len(words):
@@ -298,7 +298,7 @@ def _skip_kernel(words, state, counters, start_us):
     return stop + _follow(words[stop:], state, counters, start_us)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _restore(words, stop, state):
     """state's time low, row and vector base (base x, polarity) as they stand before word `stop`, from the
     last words before it that set them (those not set there keep the state's values; vector words
@@ -334,7 +334,7 @@ def _restore(words, stop, state):
         state[_BASE_X] += moved
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _follow(words, state, counters, start_us):
     """`_skip_kernel`'s second pass: every word, as `_decode_kernel` (events not written)."""
     high = state[_HIGH]
@@ -396,7 +396,7 @@ _VECTOR_MIN_EVENTS = 3  # VECT_BASE_X + VECT_12 (2 words) beats ADDR_X words fro
 MAX_WRAPS_PER_CALL = 1 << 16  # ~13 days of silence: beyond it the TIME_HIGH steps would swamp the data
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _advance_time_high(out, k, frm, to):
     """TIME_HIGH words from absolute time-high `frm` to `to` (> frm, or == frm at the start).
 
@@ -422,7 +422,7 @@ def _advance_time_high(out, k, frm, to):
     return k + 1
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _check_kernel(t, x, y, p, prev):
     """Index of the first event EVT3 cannot carry (t < prev or going back, x/y ≥ 2048, p > 1), else -1."""
     for i in range(len(t)):
@@ -432,7 +432,7 @@ def _check_kernel(t, x, y, p, prev):
     return -1
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _encode_kernel(t, x, y, p, out, state, last_t):
     """Write EVT3 words for the events, in stream order, into `out`; returns the word count, or -1 - i when
     event i cannot be written (`_check_kernel`, with `last_t` the stream's last time; nothing written).

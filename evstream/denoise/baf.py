@@ -16,9 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk, NoiseClass
+from ..jit import njit
 from ..nowrap import ix
 from ..pipeline import register
 from .common import NEVER_US, ScoredClassifier, check, is_int

@@ -14,10 +14,8 @@ therefore have one vector's worth of cells after its last row (`padded_map` adds
 from __future__ import annotations
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.extending import intrinsic
 
+from ..jit import intrinsic, njit
 from ..nowrap import ix
 
 VECTOR_BYTES = 32
@@ -37,6 +35,9 @@ def padded_map(width: int, height: int, radius: int, dtype, planes: int = 1) -> 
 @intrinsic
 def _add_lanes(typingctx, a, pos, delta, n):
     """a[pos : pos + n] += delta, n <= lanes, as one unaligned vector load, add and store."""
+    from llvmlite import ir  # typing time: numba is loaded (evstream.jit)
+    from numba.core import types
+
     if not (isinstance(a, types.Array) and a.layout == "C" and isinstance(a.dtype, types.Integer)):
         return None
     dtype = a.dtype
@@ -63,6 +64,8 @@ def _add_lanes(typingctx, a, pos, delta, n):
 @intrinsic
 def _lanes_of(typingctx, a):
     """Cells per vector of `a`'s dtype, as a compile-time constant (`a.itemsize` is read at run time)."""
+    from numba.core import types
+
     width = VECTOR_BYTES // (a.dtype.bitwidth // 8)
 
     def codegen(context, builder, signature, args):

@@ -17,9 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk
+from ..jit import njit
 from ..pipeline import register
 from .common import NEVER_US, ScoredClassifier, check, is_int
 

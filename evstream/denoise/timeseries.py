@@ -27,9 +27,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk, NoiseClass
+from ..jit import njit
 from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo

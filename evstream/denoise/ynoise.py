@@ -28,9 +28,9 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk, NoiseClass
+from ..jit import njit
 from ..pipeline import register
 from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
 

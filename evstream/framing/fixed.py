@@ -13,9 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk, Frame
+from ..jit import njit
 from ..nowrap import ix
 from ..pipeline import register
 from .base import COUNT_MAX, FramerBase, check_positive_int, watermark

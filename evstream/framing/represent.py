@@ -37,9 +37,9 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk, Frame
+from ..jit import njit
 from ..nowrap import ix
 from ..pipeline import build, register
 from .base import COUNT_MAX, FramerBase, check_positive_int

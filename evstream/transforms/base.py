@@ -11,9 +11,9 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk, Geometry
+from ..jit import njit
 
 
 class Transform:

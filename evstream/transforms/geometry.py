@@ -19,9 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk, Geometry
+from ..jit import njit
 from ..pipeline import register
 from .base import Transform, check_int
 

@@ -15,9 +15,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from ..events import EventChunk
+from ..jit import njit
 from ..pipeline import register
 from .base import Transform, select, select_flagged
 

@@ -14,10 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..camera import CameraModel, from_camera_info
 from ..events import EventChunk, Geometry
+from ..jit import njit
 from ..pipeline import register
 from .base import Transform
 

@@ -41,8 +41,8 @@ import functools
 import math
 
 import numpy as np
-from numba import njit
 
+from ...jit import njit
 from ...nowrap import ix
 from ..rowsum import column_sum, padded_map, row_add
 from .neighbours import SUPPORT_TICKS, nb8_support

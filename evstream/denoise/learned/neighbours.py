@@ -26,10 +26,7 @@ them inside the event's padded row.
 
 from __future__ import annotations
 
-from llvmlite import ir
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from ...jit import intrinsic
 
 SUPPORT_TICKS = (125, 625, 3125)  # nb8 any polarity within 2 ms; same polarity within 10 ms, 50 ms
 DC_IDLE_TICKS = 62_500            # 1 s: a pixel idle this long has no active bin among the last 64
@@ -41,6 +38,10 @@ def nb8_support(typingctx, word, bins, centre, wp, tick, pi, b8):
     """(s2 | s10 << 12 | s50 << 24 | dc_nb << 36 | dc_own << 48, the pixel's bitmap as of bin b) for
     the pixel `word[centre]` of maps of padded width `wp` (module docstring). `word` and `bins` must
     be C-contiguous int64 arrays of the same shape."""
+    from llvmlite import ir  # typing time: numba is loaded (evstream.jit)
+    from numba import types
+    from numba.core import cgutils
+
     for a in (word, bins):
         if not (isinstance(a, types.Array) and a.layout == "C" and a.dtype == types.int64):
             return None

@@ -1,0 +1,127 @@
+"""Build `evstream._aot`: the kernels of the everyday commands compiled ahead of time, so that they start
+without numba (evstream.jit).
+
+    python -m evstream.aot          # make .venv/.installed runs it; a few minutes on a cold numba cache
+
+Which kernels, for which argument types: those the commands call on a small synthetic recording — `archive
+--denoise paper` of a .raw and a .npz, `replay --denoise paper --save`, `convert` both ways — run here
+under numba's JIT; each (kernel, closure values, argument types) seen from Python is exported with
+numba.pycc, for this machine's CPU (as the JIT compiles), releasing the GIL as `nogil` kernels do. The
+index `evstream/_aot.json` maps kernel keys and argument types to the module's functions and records the
+size and time of every source file: after an edit the module is ignored (numba compiles, as without
+it) until this is run again. Other kernels, options or types are compiled by numba as before.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from . import jit
+
+COMMANDS = (
+    ["archive", "{raw}", "{out}/a.mcap", "--denoise", "paper", "-q"],
+    ["archive", "{npz}", "{out}/b.mcap", "--denoise", "paper", "-q"],
+    ["replay", "{raw}", "--denoise", "paper", "--save", "{out}/r.rrd", "-q"],
+    ["convert", "{raw}", "{out}/c.raw", "-q"],
+    ["convert", "{npz}", "{out}/d.raw", "-q"],
+)
+OPTIONS = {"cache", "nogil", "inline"}  # kernels compiled with other numba options stay with the JIT
+
+
+def arg_key(ty):
+    """`jit.arg_key` of an argument numba typed `ty`, as JSON; None when not exported (layout other than
+    C, or a type the run-time check does not know)."""
+    from numba.core import types
+    from numba.np.numpy_support import as_dtype
+
+    if isinstance(ty, types.Array):
+        if ty.layout != "C" or not isinstance(ty.dtype, (types.Integer, types.Float, types.Boolean)):
+            return None
+        return [as_dtype(ty.dtype).str, ty.ndim, 0x1 | (0x100 if ty.aligned else 0) | (0x400 if ty.mutable else 0)]
+    if isinstance(ty, (types.Integer, types.Float, types.Boolean)):
+        return as_dtype(ty).str
+    return None
+
+
+def record(folder: Path) -> list[jit.Kernel]:
+    """Run the commands on a small recording in `folder`; the kernels they called from Python."""
+    from .cli import main
+
+    npz, raw = folder / "rec.npz", folder / "rec.raw"
+    env = dict(os.environ, EVSTREAM_AOT="0")
+    subprocess.run([sys.executable, "-m", "evstream.cli", "synth", "turntable", str(npz), "--duration-ms", "300",
+                    "--noise-ratio", "0.5", "--seed", "1"], check=True, env=env, stdout=subprocess.DEVNULL)
+    subprocess.run([sys.executable, "-m", "evstream.cli", "convert", str(npz), str(raw), "-q"], check=True, env=env,
+                   stdout=subprocess.DEVNULL)
+    for argv in COMMANDS:
+        with contextlib.redirect_stdout(io.StringIO()):
+            code = main([a.format(raw=raw, npz=npz, out=folder) for a in argv])
+        if code != 0:
+            raise RuntimeError(f"evstream {' '.join(argv)}: exit {code}")
+    return [k for k in jit.KERNELS if k.jit_calls and k.key is not None and set(k.targetoptions) <= OPTIONS]
+
+
+def build(out_dir: Path | None = None) -> dict:
+    """Compile the recorded kernels into `evstream._aot` and write the index; returns the index."""
+    jit.use_aot(False)  # record what numba compiles, not what an older module serves
+    out_dir = out_dir or Path(__file__).resolve().parent
+    with tempfile.TemporaryDirectory() as tmp:
+        kernels = record(Path(tmp))
+    jit._numba()
+    import numba.pycc.compiler as pycc_compiler
+    from numba.core.compiler import Flags
+    from numba.pycc import CC
+
+    class ReleaseGil(Flags):  # pycc's wrappers hold the GIL; the kernels are `nogil`, so these do not
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    pycc_compiler.Flags = ReleaseGil
+    cc = CC("_aot")
+    cc.output_dir = str(out_dir)
+    cc.target_cpu = "host"  # built where it runs, like numba's JIT
+    index: dict = {"kernels": {}}
+    for kernel in kernels:
+        for sig in kernel.dispatcher.signatures:
+            keys = [arg_key(t) for t in sig]
+            if None in keys:
+                continue
+            symbol = f"k{sum(map(len, index['kernels'].values()))}"
+            cc.export(symbol, kernel.dispatcher.overloads[sig].signature)(kernel.py_func)
+            index["kernels"].setdefault(kernel.key, []).append([symbol, keys])
+    index["sources"] = jit.source_stamps(source_files())
+    index_path = out_dir / jit.AOT_INDEX.name
+    index_path.unlink(missing_ok=True)  # no index while the module is rewritten: a reader falls back to numba
+    cc.compile()
+    index_path.write_text(json.dumps(index, indent=1) + "\n")
+    return index
+
+
+def source_files() -> list[Path]:
+    """Every Python file of the package (evstream/, sources/, sinks/): a kernel also compiles in the
+    helpers and constants it imports, so any edit sets the module aside."""
+    from . import sinks, sources
+
+    folders = [Path(__file__).resolve().parent, *map(Path, sources.__path__), *map(Path, sinks.__path__)]
+    return sorted({p.resolve() for folder in folders for p in folder.rglob("*.py")})
+
+
+def main() -> None:
+    t0 = time.perf_counter()
+    index = build()
+    n = sum(map(len, index["kernels"].values()))
+    print(f"evstream._aot: {n} kernels ahead of time ({len(index['kernels'])} kinds) in "
+          f"{time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

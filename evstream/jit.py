@@ -1,0 +1,213 @@
+"""`njit` and `intrinsic` as numba's, but lazy: a command whose kernels were compiled ahead of time never
+imports numba.
+
+Importing numba and loading its first cached kernel costs ≈ 0.4 s of CPU (numba initialises its whole
+compiler, lowering library included, before it reads its cache): most of a command's start-up. A kernel
+here is a `Kernel`. Called from Python, it runs the function of `evstream._aot` — the commands' kernels,
+compiled ahead of time on this machine by `python -m evstream.aot` (`make .venv/.installed`) — when that
+module holds this kernel for these argument types (dtype, dimensions, C order, writeable, aligned) and was
+built from the sources as they are (size and time of every file); otherwise numba's dispatcher, made on
+first use with the same options (and numba's on-disk cache, as before). Inside other kernels numba sees
+the dispatcher (`typeof` below) and inlines `inline="always"` kernels as before (it reads `py_func` and
+`targetoptions`).
+
+EVSTREAM_AOT=0 (or `use_aot(False)`) leaves the ahead-of-time module aside: A/B runs, tests. With
+NUMBA_DISABLE_JIT=1 these are numba's own objects, so kernels run as plain Python (tests/mutation.py).
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import json
+import os
+import threading
+import weakref
+from pathlib import Path
+
+import numpy as np
+
+_LOCK = threading.RLock()
+KERNELS: weakref.WeakSet = weakref.WeakSet()  # every Kernel made (evstream.aot picks the ones the commands call)
+AOT_INDEX = Path(__file__).with_name("_aot.json")  # beside the module `evstream._aot` (both built, not in git)
+_FLAGS = 0x1 | 0x100 | 0x400  # NPY_ARRAY_C_CONTIGUOUS | ALIGNED | WRITEABLE: what numba's array type records
+_SCALARS = {t: np.dtype(t) for t in (np.bool_, np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint16,
+                                     np.uint32, np.uint64, np.float32, np.float64)}
+_ARRAY = np.ndarray
+_SCALARS.update({bool: np.dtype(np.bool_), int: np.dtype(np.int64), float: np.dtype(np.float64)})
+
+
+def _plain() -> bool:
+    return os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
+
+
+def njit(fn=None, **options):
+    """`numba.njit(**options)`, compiled on first use or served ahead of time (module docstring)."""
+    if _plain():
+        import numba
+
+        return numba.njit(fn, **options) if fn is not None else numba.njit(**options)
+    if fn is None:
+        return functools.partial(njit, **options)
+    return Kernel(fn, options)
+
+
+def intrinsic(definition):
+    """`numba.extending.intrinsic(definition)`, made when numba first needs it."""
+    if _plain():
+        from numba.extending import intrinsic as numba_intrinsic
+
+        return numba_intrinsic(definition)
+    return Intrinsic(definition)
+
+
+def arg_key(a):
+    """What numba's type of argument `a` depends on, as the ahead-of-time index writes it (`aot.arg_key`)."""
+    if type(a) is _ARRAY:
+        return a.dtype, a.ndim, a.flags.num & _FLAGS
+    return _SCALARS.get(type(a), type(a))
+
+
+class Kernel:
+    """One numba kernel: `kernel(*args)` runs it; `.dispatcher` is numba's (made on first use)."""
+
+    def __init__(self, py_func, options: dict):
+        functools.update_wrapper(self, py_func)
+        self.py_func = py_func
+        self.targetoptions = dict(options)
+        self._dispatcher = None
+        self.key = kernel_key(py_func)
+        self.jit_calls = 0  # calls numba's dispatcher served (the others: the ahead-of-time module)
+        KERNELS.add(self)
+        self.aot = aot_table(self.key)  # {argument keys: compiled function}; empty without the module
+
+    def __call__(self, *args):
+        if self.aot:  # arg_key, inline (a call per argument would double the cost: ~0.2 µs an argument)
+            fn = self.aot.get(tuple([(a.dtype, a.ndim, a.flags.num & _FLAGS) if type(a) is _ARRAY
+                                     else _SCALARS.get(type(a), type(a)) for a in args]))
+            if fn is not None:
+                return fn(*args)
+        self.jit_calls += 1
+        return self.dispatcher(*args)
+
+    @property
+    def dispatcher(self):
+        if self._dispatcher is None:
+            with _LOCK:
+                if self._dispatcher is None:
+                    self._dispatcher = _numba().njit(**self.targetoptions)(self.py_func)
+        return self._dispatcher
+
+    def __repr__(self):
+        return f"Kernel({self.key})"
+
+
+class Intrinsic:
+    """A numba intrinsic, defined when a kernel using it is first compiled."""
+
+    def __init__(self, definition):
+        functools.update_wrapper(self, definition)
+        self._definition = definition
+        self._real = None
+
+    @property
+    def real(self):
+        if self._real is None:
+            with _LOCK:
+                if self._real is None:
+                    _numba()
+                    from numba.extending import intrinsic as numba_intrinsic
+
+                    self._real = numba_intrinsic(self._definition)
+        return self._real
+
+
+@functools.cache
+def _numba():
+    """numba, taught to type `Kernel` and `Intrinsic` objects met inside kernels as what they stand for."""
+    with _LOCK:
+        import numba
+        from numba.core import types
+        from numba.core.registry import cpu_target
+        from numba.core.typing.typeof import typeof_impl
+
+        @typeof_impl.register(Kernel)
+        def _typeof_kernel(val, c):
+            return types.Dispatcher(val.dispatcher)
+
+        @typeof_impl.register(Intrinsic)
+        def _typeof_intrinsic(val, c):
+            real = val.real
+            cpu_target.typing_context.refresh()  # installs the intrinsic's typing template
+            return cpu_target.typing_context.resolve_value_type(real)
+
+        return numba
+
+
+def kernel_key(py_func) -> str | None:
+    """`module:qualname`, plus the values a kernel factory's closure fixes (None: not a plain value)."""
+    key = f"{py_func.__module__}:{py_func.__qualname__}"
+    cells = py_func.__closure__ or ()
+    values = []
+    for cell in cells:
+        v = cell.cell_contents
+        if not _plain_value(v):
+            return None
+        values.append(v)
+    return key + (repr(tuple(values)) if cells else "")
+
+
+def _plain_value(v) -> bool:
+    if isinstance(v, tuple):
+        return all(map(_plain_value, v))
+    return v is None or type(v) in (bool, int, float, str)
+
+
+_USE_AOT = [os.environ.get("EVSTREAM_AOT", "1").lower() not in ("0", "no", "off", "false")]
+
+
+def use_aot(on: bool) -> None:
+    """Serve kernels from the ahead-of-time module when it has them (on: the default unless EVSTREAM_AOT=0),
+    or always from numba (A/B runs, tests, `evstream.aot` recording what numba compiles)."""
+    _USE_AOT[0] = on
+    for kernel in list(KERNELS):
+        kernel.aot = aot_table(kernel.key)
+
+
+def aot_table(key: str | None) -> dict:
+    if key is None or not _USE_AOT[0]:
+        return {}
+    return _aot_index().get(key, {})
+
+
+@functools.cache
+def _aot_index() -> dict:
+    return {} if _plain() else load_aot(AOT_INDEX)
+
+
+def load_aot(index_path: Path) -> dict:
+    """{kernel key: {argument keys: function}} of `evstream._aot` as `index_path` describes it, or {} when
+    either is missing or they were built from other sources than these (then numba compiles, as without)."""
+    try:
+        index = json.loads(index_path.read_text())
+        if source_stamps(index["sources"]) != index["sources"]:
+            return {}
+        module = importlib.import_module("evstream._aot")
+    except (OSError, ValueError, KeyError, ImportError):
+        return {}
+    return {key: {_decode(arg_keys): getattr(module, symbol) for symbol, arg_keys in entries}
+            for key, entries in index["kernels"].items()}
+
+
+def source_stamps(paths) -> dict[str, list[int]]:
+    """{path: [size, mtime in ns]} of source files (absolute paths: the module is built for this checkout)."""
+    stamps = {}
+    for path in paths:
+        st = os.stat(path)
+        stamps[str(path)] = [st.st_size, st.st_mtime_ns]
+    return stamps
+
+
+def _decode(arg_keys: list) -> tuple:
+    """Argument keys as written in the index (`aot.arg_key`) back to `arg_key`'s form."""
+    return tuple((np.dtype(k[0]), k[1], k[2]) if isinstance(k, list) else np.dtype(k) for k in arg_keys)

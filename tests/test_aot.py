@@ -1,0 +1,129 @@
+"""Kernels compiled ahead of time (evstream.aot, evstream.jit): on every call the commands make they return
+and write what numba's JIT does; they serve only the argument types they were compiled for; the module
+is set aside once a source file changes; and a command served by them does not import numba."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from evstream.sources import native, prophesee_raw
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evstream import aot, jit
+from evstream.cli import main
+from evstream.events import Geometry, _first_invalid
+from evstream.testing import random_stream
+
+needs_aot = pytest.mark.skipif(not jit._aot_index(), reason="no evstream._aot built from these sources: run "
+                               "`python -m evstream.aot` (make .venv/.installed does)")
+G = Geometry(64, 48)
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, tuple):
+        return isinstance(b, tuple) and len(a) == len(b) and all(map(_same, a, b))
+    if isinstance(a, np.ndarray):
+        return isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
+    return type(a) is type(b) and a == b
+
+
+class AgainstJit:
+    """An ahead-of-time function that also runs numba's dispatcher on copies of the arguments and checks
+    that both return the same and leave the same arrays."""
+
+    def __init__(self, kernel: jit.Kernel, fn):
+        self.kernel, self.fn, self.calls = kernel, fn, 0
+
+    def __call__(self, *args):
+        copies = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+        got = self.fn(*args)
+        want = self.kernel.dispatcher(*copies)
+        assert _same(got, want), f"{self.kernel}: returned {got!r}, numba {want!r}"
+        for i, (a, b) in enumerate(zip(args, copies)):
+            assert _same(a, b), f"{self.kernel}: argument {i} differs from numba's"
+        self.calls += 1
+        return got
+
+
+@needs_aot
+@settings(max_examples=4, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 40_000), mean_dt_us=st.sampled_from([2.0, 20.0, 200.0]))
+def test_every_ahead_of_time_call_of_the_commands_matches_numba(tmp_path_factory, seed, n, mean_dt_us):
+    """The commands `evstream.aot` compiles for, run on random recordings (bursts, border pixels, a hot
+    pixel): every call served ahead of time is checked against numba on the same arguments, and every
+    compiled kernel is called."""
+    folder = tmp_path_factory.mktemp("aot")
+    events = random_stream(seed, n, G, mean_dt_us=mean_dt_us)
+    npz, raw = folder / "rec.npz", folder / "rec.raw"
+    native.save(npz, events, compress=False)
+    prophesee_raw.save(raw, events, G, version="evt3")
+    commands = [[a.format(raw=raw, npz=npz, out=folder) for a in argv] for argv in aot.COMMANDS]
+    with contextlib.redirect_stdout(io.StringIO()):
+        for argv in commands:  # makes the kernel factories' kernels (cached), so that all are checked below
+            assert main(argv) == 0
+    kernels = [k for k in list(jit.KERNELS) if k.aot]
+    saved = {k: k.aot for k in kernels}
+    checks = {k: {key: AgainstJit(k, fn) for key, fn in k.aot.items()} for k in kernels}
+    try:
+        for k in kernels:
+            k.aot = checks[k]
+        with contextlib.redirect_stdout(io.StringIO()):
+            for argv in commands:
+                assert main(argv) == 0
+    finally:
+        for k in kernels:
+            k.aot = saved[k]
+    calls = {k.key: sum(c.calls for c in checks[k].values()) for k in kernels}
+    assert set(calls) == set(json.loads(jit.AOT_INDEX.read_text())["kernels"])
+    assert all(calls.values()), calls
+
+
+@needs_aot
+def test_other_argument_types_go_to_numba():
+    """A strided array, or another dtype, is not what the module was compiled for: numba compiles it."""
+    t = np.arange(0, 40, dtype=np.int64)
+    x = np.arange(40, dtype=np.uint16) % 7
+    p = np.zeros(40, np.uint8)
+    args = (t, x, x, p, 5, 7, np.int64(-1))
+    before = _first_invalid.jit_calls
+    assert _first_invalid(*args) == _first_invalid.py_func(*args)  # the module's variant
+    assert _first_invalid.jit_calls == before
+    for odd in ((t[::2], x[::2], x[::2], p[::2], 5, 7, -1), (t.astype(np.int32), x, x, p, 5, 7, -1)):
+        assert _first_invalid(*odd) == _first_invalid.py_func(*odd)
+    assert _first_invalid.jit_calls == before + 2
+
+
+@needs_aot
+def test_a_changed_source_file_sets_the_module_aside(tmp_path):
+    index = json.loads(jit.AOT_INDEX.read_text())
+    (tmp_path / "same.json").write_text(json.dumps(index))
+    assert jit.load_aot(tmp_path / "same.json")
+    path = next(iter(index["sources"]))
+    index["sources"][path][1] += 1  # as if edited after the build
+    (tmp_path / "edited.json").write_text(json.dumps(index))
+    assert jit.load_aot(tmp_path / "edited.json") == {}
+    assert jit.load_aot(tmp_path / "missing.json") == {}
+
+
+@needs_aot
+@pytest.mark.parametrize("use_aot", ["1", "0"])
+def test_a_command_served_ahead_of_time_does_not_import_numba(tmp_path, use_aot):
+    """The point of it all: `archive --denoise paper` without numba's ~0.4 s of start-up (EVSTREAM_AOT=0:
+    numba compiles or loads its cache, as before)."""
+    rec = tmp_path / "rec.npz"
+    native.save(rec, random_stream(1, 5_000, G), compress=False)
+    script = ("import sys\nfrom evstream.cli import main\n"
+              f"code = main(['archive', {str(rec)!r}, {str(tmp_path / 'a.mcap')!r}, '--denoise', 'paper', '-q'])\n"
+              "print(code, 'numba' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True,
+                         env=dict(os.environ, EVSTREAM_AOT=use_aot), cwd=Path(__file__).parents[1])
+    assert out.stdout.split()[-2:] == ["0", "False" if use_aot == "1" else "True"]
