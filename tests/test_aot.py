@@ -127,3 +127,15 @@ def test_a_command_served_ahead_of_time_does_not_import_numba(tmp_path, use_aot)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True,
                          env=dict(os.environ, EVSTREAM_AOT=use_aot), cwd=Path(__file__).parents[1])
     assert out.stdout.split()[-2:] == ["0", "False" if use_aot == "1" else "True"]
+
+
+def test_importing_the_package_does_not_import_numba():
+    """Kernels are made with evstream.jit, whose numba import waits for a compile: a module importing numba
+    itself would put numba's ~0.2 s import back into every command's start-up."""
+    script = ("import sys\nimport evstream, evstream.cli, evstream.denoise, evstream.framing, evstream.transforms\n"
+              "import evstream.synth, evstream.sources, evstream.sinks.mcap_sink\n"
+              "from evstream.sources import native, prophesee_raw, text\n"
+              "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'llvmlite')))\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).parents[1])
+    assert out.stdout.strip() == "[]"
