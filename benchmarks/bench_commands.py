@@ -1,8 +1,9 @@
 """Whole commands as a user runs them, one process each: `archive --denoise paper`, `replay --save` and
 `convert` on a 10 M-event recording (346×260, the turntable with background activity and hot pixels of
 bench_archive, tiled to 10 M events), serial (EVSTREAM_THREADS=0) against threaded (reading, stages and
-writing on their own threads, evstream.threads), interleaved; and the start-up of a command (imports,
-cached kernels) on a 2,000-event file.
+writing on their own threads, evstream.threads), with the kernels compiled ahead of time (evstream._aot,
+`make aot`) and with numba's cached kernels (EVSTREAM_AOT=0), interleaved; and the start-up of a command
+(imports, kernels) on a 2,000-event file, both ways.
 
     .venv/bin/python -m benchmarks.bench_commands            # the table (about 3 minutes on a quiet machine)
     .venv/bin/python -m benchmarks.bench_commands --repeat 1 --inputs raw   # quicker
@@ -75,10 +76,10 @@ def child(argv: list[str]) -> None:
     Path(os.environ["BENCH_OUT"]).write_text(json.dumps(seen))
 
 
-def run_child(argv: list[str], threads: bool, folder: Path) -> dict:
+def run_child(argv: list[str], threads: bool, folder: Path, aot: bool = True) -> dict:
     out = folder / "child.json"
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # as installed: bytecode cached
-    env.update(EVSTREAM_THREADS="1" if threads else "0", BENCH_OUT=str(out))
+    env.update(EVSTREAM_THREADS="1" if threads else "0", EVSTREAM_AOT="1" if aot else "0", BENCH_OUT=str(out))
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "benchmarks.bench_commands", "--child", *argv], env=env,
                             cwd=Path(__file__).resolve().parents[1], stdout=subprocess.DEVNULL,
@@ -120,17 +121,25 @@ def run(repeat: int = 3, inputs=("raw", "native"), commands=("archive", "replay"
         paths = {p.stem: p for p in folder.iterdir()}
         print(f"-- load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; best of {repeat}; "
               f"{N_EVENTS:,} events, 346x260", flush=True)
+        from evstream import jit
+
+        if not jit._aot_index():
+            print("   (no evstream._aot built from these sources: `make aot`; the 'aot' rows are numba's)")
         for threads in (False, True):  # warm: kernels compiled and cached, bytecode written
-            run_child(["archive", str(paths["tiny"]), str(folder / "w.mcap"), "--denoise", "paper", "-q"], threads,
-                      folder)
-        startup = []
+            for aot in (True, False):
+                run_child(["archive", str(paths["tiny"]), str(folder / "w.mcap"), "--denoise", "paper", "-q"],
+                          threads, folder, aot)
+        startup = {True: [], False: []}
         for _ in range(max(5, 2 * repeat)):
-            startup.append(run_child(["archive", str(paths["tiny"]), str(folder / "s.mcap"), "--denoise", "paper",
-                                      "-q"], True, folder))
-        best = min(startup, key=lambda r: r["process_wall_s"])
-        cpu = min(r["process_cpu_s"] for r in startup)
-        print(f"start-up: `evstream archive` of 2,000 events: wall {best['process_wall_s']:.3f} s, "
-              f"CPU {cpu:.3f} s (best of {len(startup)})", flush=True)
+            for aot in (True, False):  # interleaved
+                startup[aot].append(run_child(["archive", str(paths["tiny"]), str(folder / "s.mcap"), "--denoise",
+                                               "paper", "-q"], True, folder, aot))
+        for aot in (True, False):
+            best = min(startup[aot], key=lambda r: r["process_wall_s"])
+            cpu = min(r["process_cpu_s"] for r in startup[aot])
+            how = "kernels ahead of time (evstream._aot)" if aot else "numba's cached kernels (EVSTREAM_AOT=0)"
+            print(f"start-up: `evstream archive --denoise paper` of 2,000 events, {how}: wall "
+                  f"{best['process_wall_s']:.3f} s, CPU {cpu:.3f} s (best of {len(startup[aot])})", flush=True)
         # the floor under any command that runs a kernel: numba's import and its first cached kernel (numba
         # initialises its target, importing its whole lowering library, before loading from the cache)
         (folder / "one_kernel.py").write_text("import numba\n\n\n@numba.njit(cache=True)\ndef f(x):\n"
@@ -147,8 +156,8 @@ def run(repeat: int = 3, inputs=("raw", "native"), commands=("archive", "replay"
                 wall.append(time.perf_counter() - t0)
                 cpu.append(usage.ru_utime + usage.ru_stime)
             print(f"  (for scale) {what}: wall {min(wall[1:]):.3f} s, CPU {min(cpu[1:]):.3f} s", flush=True)
-        print(f"{'command':<44} {'thr':>3} {'wall s':>7} {'CPU s':>6} {'M ev/s':>7} | {'reader':>6} {'stages':>6} "
-              f"{'writer':>6} {'other':>6} {'crit s':>6} {'M ev/s':>7} | {'RSS MB':>6}", flush=True)
+        print(f"{'command':<44} {'thr':>3} {'aot':>3} {'wall s':>7} {'CPU s':>6} {'M ev/s':>7} | {'reader':>6} "
+              f"{'stages':>6} {'writer':>6} {'other':>6} {'crit s':>6} {'M ev/s':>7} | {'RSS MB':>6}", flush=True)
         for kind in inputs:
             src = str(paths[kind])
             runs = {
@@ -158,12 +167,13 @@ def run(repeat: int = 3, inputs=("raw", "native"), commands=("archive", "replay"
             }
             for name in commands:
                 argv = runs[name]
-                results = {False: [], True: []}
+                variants = [(False, True), (True, True), (True, False)]  # (threads, aot)
+                results = {v: [] for v in variants}
                 for _ in range(repeat):
-                    for threads in (False, True):  # interleaved: the same load on both
-                        results[threads].append(run_child(argv, threads, folder))
-                for threads in (False, True):
-                    r = min(results[threads], key=lambda r: r["process_wall_s"])
+                    for v in variants:  # interleaved: the same load on each
+                        results[v].append(run_child(argv, v[0], folder, v[1]))
+                for threads, aot in variants:
+                    r = min(results[threads, aot], key=lambda r: r["process_wall_s"])
                     th = dict(r.get("threads") or {})
                     if th:  # CPU of threads not ours (Rerun's encoder and writer)
                         th["other"] = max(0.0, r["run_cpu_s"] - sum(th.values()))
@@ -171,7 +181,8 @@ def run(repeat: int = 3, inputs=("raw", "native"), commands=("archive", "replay"
                     busiest = max(th.values()) if th else r.get("run_cpu_s", 0.0)
                     crit = startup_cpu + busiest
                     label = f"{name} {kind}" + (" --denoise paper" if name != "convert" else " -> .raw")
-                    print(f"{label:<44} {'yes' if threads else 'no':>3} {r['process_wall_s']:7.2f} "
+                    print(f"{label:<44} {'yes' if threads else 'no':>3} {'yes' if aot else 'no':>3} "
+                          f"{r['process_wall_s']:7.2f} "
                           f"{r['process_cpu_s']:6.2f} {N_EVENTS / r['process_wall_s'] / 1e6:7.1f} | "
                           + " ".join(f"{th[k]:6.2f}" if k in th else f"{'-':>6}" for k in ROLES)
                           + f" {crit:6.2f} {N_EVENTS / crit / 1e6:7.1f} | {r['rss_mb']:6.0f}", flush=True)
