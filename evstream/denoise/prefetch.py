@@ -6,10 +6,7 @@ FIFO entries about to expire), so issuing them early overlaps those misses. A hi
 faults, even out of bounds, and changes no result.
 """
 
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from ..jit import intrinsic, njit
 
 # A map larger than this does not stay in the L2 cache (1 MiB per core on the machines measured) beside
 # the other maps and the events: kernels over it prefetch.
@@ -18,6 +15,10 @@ FAR_BYTES = 1 << 20
 
 @intrinsic
 def _prefetch(typingctx, a, i):
+    from llvmlite import ir  # typing time: numba is loaded (evstream.jit)
+    from numba import types
+    from numba.core import cgutils
+
     if not isinstance(a, types.Array):
         return None
 
