@@ -46,6 +46,7 @@ from evstream.sinks.colours import CLASS_COLOURS
 from evstream.events import N_CLASSES, EventChunk, Frame, Geometry, NoiseClass
 from evstream.framing.render import render_representation
 from evstream.framing.represent import REPRESENTATIONS
+from evstream.jit import njit
 from evstream.pipeline import Batch, RunStats
 
 TIMELINE = "event_time"
@@ -137,6 +138,92 @@ def blueprint(geometry: Geometry, slab_ms: float = 100.0, framer: str | None = N
     )
 
 
+# -- kernels --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def points_by_class(t, x, y, cls, origin_us, bin_us, scale, n_classes):
+    """The 3D points of events `t` (sorted), x, y grouped by class for one Rerun row per `bin_us` of
+    timeline (timeline µs = t - origin_us; depth = -timeline µs · scale). Returns pos (n, 3) float32 —
+    class 0's points, then class 1's, ..., each in stream order; classes >= n_classes are left out —,
+    the count per class, per class its rows' lengths and last timeline µs (n_rows[c] of each row of
+    `row_len`/`row_us`), and the last timeline µs of each row over all classes (the slab's rows)."""
+    n = len(t)
+    count = np.zeros(n_classes, np.int64)
+    n_rows = np.zeros(n_classes, np.int64)
+    last_bin = np.zeros(n_classes, np.int64)
+    all_rows = 0
+    prev = np.int64(0)
+    for i in range(n):  # pass 1: sizes
+        b = (t[i] - origin_us) // bin_us
+        if i == 0 or b != prev:
+            all_rows += 1
+            prev = b
+        c = np.intp(cls[i])
+        if c >= n_classes:
+            continue
+        if count[c] == 0 or b != last_bin[c]:
+            n_rows[c] += 1
+            last_bin[c] = b
+        count[c] += 1
+    width = max(1, n_rows.max()) if n_classes else 1
+    pos = np.empty((count.sum(), 3), np.float32)
+    row_len = np.zeros((n_classes, width), np.int64)
+    row_us = np.zeros((n_classes, width), np.int64)
+    slab_us = np.zeros(all_rows, np.int64)
+    at = np.zeros(n_classes, np.int64)  # next row of pos per class
+    for c in range(1, n_classes):
+        at[c] = at[c - 1] + count[c - 1]
+    row = np.full(n_classes, -1, np.int64)
+    k = -1
+    for i in range(n):  # pass 2: fill
+        rel = t[i] - origin_us
+        b = rel // bin_us
+        if i == 0 or b != prev:
+            k += 1
+            prev = b
+        slab_us[k] = rel
+        c = np.intp(cls[i])
+        if c >= n_classes:
+            continue
+        if row[c] < 0 or b != last_bin[c]:
+            row[c] += 1
+            last_bin[c] = b
+        row_len[c, row[c]] += 1
+        row_us[c, row[c]] = rel
+        j = at[c]
+        pos[j, 0] = np.float32(x[i])
+        pos[j, 1] = np.float32(y[i])
+        pos[j, 2] = np.float32(np.float64(rel) * -scale)
+        at[c] = j + 1
+    return pos, count, n_rows, row_len, row_us, slab_us
+
+
+@njit(cache=True, nogil=True)
+def class_counts_per_bin(t, cls, t0, bin_us, open_bin, n_classes):
+    """The distinct bins (t - t0) // bin_us - open_bin of events `t` (sorted), ascending, and the events
+    per class in each (classes >= n_classes are not counted)."""
+    n = len(t)
+    distinct = 0
+    prev = np.int64(0)
+    for i in range(n):
+        b = (t[i] - t0) // bin_us - open_bin
+        if i == 0 or b != prev:
+            distinct += 1
+            prev = b
+    bins = np.empty(distinct, np.int64)
+    per = np.zeros((distinct, n_classes), np.int64)
+    k = -1
+    for i in range(n):
+        b = (t[i] - t0) // bin_us - open_bin
+        if i == 0 or b != prev:
+            k += 1
+            bins[k] = b
+            prev = b
+        c = np.intp(cls[i])
+        if c < n_classes:
+            per[k, c] += 1
+    return bins, per
+
+
 # -- pieces that keep state across chunks --------------------------------------------------------
 class _TokenBucket:
     """What the two point budgets share: `rate_hz` tokens a second, a burst of `burst_s` worth, and the
@@ -215,21 +302,13 @@ class StatsBins:
         ends: list[np.ndarray] = []
         counts: list[np.ndarray] = []
         if len(t):
-            b = (t - self.t0) // self.bin_us
-            first = b[0]
+            first = (int(t[0]) - self.t0) // self.bin_us
             if first > self.open_bin:  # the open bin closed before this chunk
                 self._close_through(first, ends, counts)
-            last = int(b[-1])
-            local = (b - self.open_bin).astype(np.int64)  # non-decreasing, local[0] == 0
-            # counts of the bins that hold events only: a pause of days inside one chunk must not
-            # allocate a row per empty bin (2^42 µs took 9.8 GiB)
-            step = np.flatnonzero(np.diff(local)) + 1
-            bins = local[np.concatenate(([0], step))]  # the distinct bins, ascending
-            which = np.zeros(len(local), np.int64)
-            which[step] = 1
-            which = np.cumsum(which)  # each event's index among `bins`
-            per = np.bincount(which * N_CLASSES + cls, minlength=len(bins) * N_CLASSES)
-            per = per.reshape(len(bins), N_CLASSES)
+            last = (int(t[-1]) - self.t0) // self.bin_us
+            # counts of the bins that hold events only (local to the open bin): a pause of days inside
+            # one chunk must not allocate a row per empty bin (2^42 µs took 9.8 GiB)
+            bins, per = class_counts_per_bin(t, cls, self.t0, self.bin_us, self.open_bin, N_CLASSES)
             per[0] += self.open_counts
             idx = self._with_gap_edges(bins[:-1], int(bins[-1]))  # every bin but the last closed
             if len(idx):
@@ -480,6 +559,9 @@ class RerunSink:
     def _log_points(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, cls: np.ndarray) -> None:
         if not len(t):
             return
+        if self.classes_apart:
+            self._log_points_apart(t, x, y, cls)
+            return
         rel = self._rel(t)
         bins = rel // self.time_bin_us
         # Slab transform: one row per bin, newest events at depth 0.
@@ -493,24 +575,31 @@ class RerunSink:
         pos[:, 1] = y
         pos[:, 2] = rel * -self.scale
         self.points_logged += len(t)
-        if not self.classes_apart:  # one chunk: every class's points, their ids and the slab's transform
-            points = rr.Points3D.columns(positions=pos, class_ids=cls).partition(np.diff(ends_idx, prepend=-1))
-            self.rec.send_columns(POINTS_ENTITY, indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))],
-                                  columns=[*points, *slab])
-            return
-        self.rec.send_columns("events", indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))], columns=slab)
-        for c, entity in CLASS_ENTITIES.items():
-            sel = np.flatnonzero(cls == c)
-            if not len(sel):
-                continue
-            b = bins[sel]
-            cut = np.flatnonzero(np.diff(b)) + 1
-            lengths = np.diff(np.concatenate(([0], cut, [len(sel)])))
-            last = np.append(cut, len(sel)) - 1
-            self.rec.send_columns(
-                entity, indexes=[rr.TimeColumn(TIMELINE, duration=_us(rel[sel][last]))],
-                columns=rr.Points3D.columns(positions=pos[sel]).partition(lengths),
-            )
+        # one chunk: every class's points, their ids and the slab's transform
+        points = rr.Points3D.columns(positions=pos, class_ids=cls).partition(np.diff(ends_idx, prepend=-1))
+        self.rec.send_columns(POINTS_ENTITY, indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))],
+                              columns=[*points, *slab])
+
+    def _log_points_apart(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, cls: np.ndarray) -> None:
+        """Each class's points in its entity, one row per `time_bin_us`, and the slab's transform on
+        `events` (one row per bin holding any event); grouped by one kernel pass (4x numpy's masks)."""
+        pos, count, n_rows, row_len, row_us, slab_us = points_by_class(
+            t, x, y, cls, self.t0 - self.offset_us, self.time_bin_us, self.scale, N_CLASSES)
+        depth = (slab_us * self.scale).astype(np.float32)
+        zero = np.zeros_like(depth)
+        slab = rr.Transform3D.columns(translation=np.column_stack((zero, zero, depth)))
+        self.rec.send_columns("events", indexes=[rr.TimeColumn(TIMELINE, duration=_us(slab_us))], columns=slab)
+        self.points_logged += len(t)
+        start = 0
+        for c in range(N_CLASSES):
+            stop = start + int(count[c])
+            if stop > start and c in CLASS_ENTITIES:
+                k = int(n_rows[c])
+                self.rec.send_columns(
+                    CLASS_ENTITIES[c], indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_us[c, :k]))],
+                    columns=rr.Points3D.columns(positions=pos[start:stop]).partition(row_len[c, :k]),
+                )
+            start = stop
 
     def _log_stats(self, ends_us: np.ndarray, counts: np.ndarray) -> None:
         if not len(ends_us):
