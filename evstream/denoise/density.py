@@ -186,11 +186,12 @@ class DensityFilter(InPlaceClassifier):
         g = chunk.geometry
         r = self.radius_px
         cap = 1 << 12
+        hsum = padded_map(g.width, g.height, r, np.int32, planes=2 if self.match_polarity else 1)
         return {
             "geometry": g,
-            "hsum": padded_map(g.width, g.height, r, np.int32, planes=2 if self.match_polarity else 1),
+            "hsum": hsum,
             "fifo_t": np.zeros(cap, np.int64),
-            "fifo_pos": np.zeros(cap, np.int64),
+            "fifo_pos": np.zeros(cap, np.int32 if len(hsum) < 2**31 else np.int64),  # map positions
             "fifo_state": np.zeros(2, np.int64),
             "per_pol": np.zeros(2, np.int64),
         }
