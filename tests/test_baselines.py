@@ -185,6 +185,7 @@ def test_kernel_matches_brute_force_and_streams(name, data, seed, n):
     s = random_stream(seed, n, t0_us=int(seed % 1000) - 500)  # negative timestamps too
     codes, scores = cls(**kw).classify_scored(s)
     want_codes, want_scores = ref(s, kw)
+    assert codes.dtype == np.uint8 and scores.dtype == np.float64
     np.testing.assert_array_equal(codes, want_codes)
     np.testing.assert_array_equal(scores, want_scores)
     np.testing.assert_array_equal(cls(**kw).classify(s), want_codes)  # the class-only compiled variant too
@@ -192,6 +193,26 @@ def test_kernel_matches_brute_force_and_streams(name, data, seed, n):
         assert_chunk_invariant(lambda: cls(**kw), s, seed)
         assert_chunk_invariant(lambda: cls(**kw), s, seed, apply=_all_scores, splits=2, one_event=False)
         assert_causal(lambda: cls(**kw), s, seed)
+
+
+_TIMES = ("tau_us", "window_us", "refractory_us", "hot_window_us")
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+@settings(max_examples=max(1, settings().max_examples // 2))
+@given(data=st.data(), seed=st.integers(0, 2**32 - 1), n=st.integers(1, 140))
+def test_kernel_matches_brute_force_on_ties(name, data, seed, n):
+    """Timestamps and time parameters on a 100 µs grid: ages equal to the window, equal timestamps and
+    equal neighbours' times are the rule here (random times almost never hit `<` against `<=`)."""
+    params, cls, ref = CASES[name]
+    kw = {k: (max(1, v // 100) * 100 if k in _TIMES else v) for k, v in data.draw(params).items()}
+    s = random_stream(seed, n)
+    s = s.replace(t=s.t // 100 * 100)
+    codes, scores = cls(**kw).classify_scored(s)
+    want_codes, want_scores = ref(s, kw)
+    np.testing.assert_array_equal(codes, want_codes)
+    np.testing.assert_array_equal(scores, want_scores)
+    np.testing.assert_array_equal(cls(**kw).classify(s), want_codes)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -228,7 +249,8 @@ def _one_by_one(stage, s):
     {"kind": "stcf", "radius_px": 0}, {"kind": "stcf", "polarity_match": "yes"},
     {"kind": "khodamoradi", "k": 7}, {"kind": "ynoise", "hot_ratio": 1.5}, {"kind": "ynoise", "threshold": 0},
     {"kind": "ynoise", "hot_min_events": 9}, {"kind": "dwf", "window_events": 0}, {"kind": "dwf", "k": 100},
-    {"kind": "refractory", "refractory_us": -5}, {"kind": "hotpixel", "rate_hz": 0},
+    {"kind": "refractory", "refractory_us": -5}, {"kind": "refractory", "refractory_us": 0},
+    {"kind": "hotpixel", "rate_hz": 0},
     {"kind": "hotpixel", "window_us": True}, {"kind": "baf", "tau": 10},
 ])
 def test_bad_parameters_are_refused_at_construction(spec):
