@@ -361,3 +361,125 @@ def test_other_future_keeps_the_prefix_and_replaces_the_rest():
         assert altered.t[m] >= s.t[m - 1] and not np.array_equal(altered.x[m:], s.x[m:])
         at_cut += altered.t[m] == s.t[m - 1]
     assert at_cut >= 6
+
+
+# -- what mutation testing found the checks above left open ---------------------------------------
+class Creeps:
+    """Breaks the memory bound slowly: a fixed 64 kB map plus 2 bytes per event seen (1.4x over an
+    8x longer stream: only the bound's `slack` of 1.25 catches it)."""
+
+    def __init__(self):
+        self.map, self.log = np.zeros(64_000, np.uint8), np.zeros(0, np.uint8)
+
+    def __call__(self, c):
+        self.log = np.zeros(len(self.log) + 2 * len(c), np.uint8)
+        return c.replace(cls=np.zeros(len(c), np.uint8))
+
+
+class StartsBig(Hoards):
+    """Holds 800 kB until its first chunk, then only what it hoards: under its start-up peak for the
+    short and the long stream alike, so it passes (the peak counts the state before any event)."""
+
+    def __init__(self):
+        super().__init__()
+        self.startup = np.zeros(100_000, np.int64)
+
+    def __call__(self, c):
+        self.startup = None
+        return super().__call__(c)
+
+
+def test_bounded_state_uses_its_slack_and_counts_the_state_before_the_first_chunk():
+    with pytest.raises(AssertionError, match="grows with stream length"):
+        assert_bounded_state(Creeps, lambda n: random_stream(0, n))
+    big = np.full((480, 640), -(10**9), np.int64)  # a correct stage with a 2.4 MB map: the bound is relative
+    assert_bounded_state(lambda: LastSeen(last=big.copy()), lambda n: random_stream(0, n))
+    assert_bounded_state(StartsBig, lambda n: random_stream(0, n))
+
+
+def test_bounded_state_feeds_every_event_once_in_order():
+    seen = []
+
+    class Logs(LastSeen):
+        def __call__(self, c):
+            seen.append(c.t.copy())
+            return super().__call__(c)
+
+    streams = {}
+
+    def stream_of_length(n):
+        streams[n] = random_stream(0, n)
+        return streams[n]
+
+    assert_bounded_state(Logs, stream_of_length, n=600, factor=2, chunk=100)
+    fed = np.concatenate(seen)
+    assert np.array_equal(fed, np.concatenate([streams[600].t, streams[1200].t]))
+    assert [len(t) for t in seen] == [100] * 6 + [100] * 12
+
+
+def test_state_nbytes_counts_an_array_once_however_it_is_reached():
+    from types import SimpleNamespace
+
+    from evstream.testing import state_nbytes
+
+    a = np.zeros(100, np.int64)
+    holder = SimpleNamespace(a=a)
+    assert state_nbytes([a, holder]) == 16 + 800 and state_nbytes([a, {"k": a}]) == 16 + 800
+    holder.me = holder  # a cycle through an object's attributes
+    assert state_nbytes(holder) == 800
+
+
+def test_chunk_invariance_without_one_event_chunks_does_not_feed_them_all():
+    calls = []
+
+    class Counts(LastSeen):
+        def __call__(self, c):
+            calls.append(len(c))
+            return super().__call__(c)
+
+    s = random_stream(4, 300)
+    assert_chunk_invariant(Counts, s, 4, one_event=False)
+    assert len(calls) < 60  # the whole stream, then 3 splits of at most 15 chunks
+    calls.clear()
+    assert_chunk_invariant(Counts, s, 4)
+    assert calls.count(1) >= 300
+
+
+def test_causality_is_checked_on_two_event_streams():
+    """The shortest stream with a future (the prefix is its first event): a stage peeking at its chunk's
+    last event is caught there too, and so is a framer emitting a frame before the watermark closed it."""
+    with pytest.raises(AssertionError, match="prefix of 1 events with a different future"):
+        for seed in range(20):
+            assert_causal(Peeks, random_stream(seed, 2), seed)
+    assert_causal(LastSeen, random_stream(0, 2), 0)
+    with pytest.raises(AssertionError, match="vs those emitted after 1 events"):
+        assert_framer_causal(Premature, random_stream(0, 2).replace(cls=None, t=np.array([0, 10])), 0)
+    assert_framer_causal(Windows, random_stream(0, 2).replace(cls=None, t=np.array([0, 10])), 0)
+
+
+class Premature(Windows):
+    """Breaks causality: also emits its open frame at the end of every chunk, before the watermark
+    has closed it."""
+
+    def push(self, chunk):
+        out = super().push(chunk)
+        if self.events:
+            counts = np.zeros((2, chunk.geometry.height, chunk.geometry.width), np.uint16)
+            for x, y, p in self.events:
+                counts[p, y, x] += 1
+            out.append(Frame(self.start, self.start + self.window_us, len(self.events), counts))
+        return out
+
+
+def test_checks_say_which_check_failed():
+    frames = frames_of(FixedWindow(window_us=400), [random_stream(3, 300)])
+    with pytest.raises(AssertionError, match=r"^frames: frame 0 differs"):
+        assert_frames_equal([frames[1]], [frames[0]])
+    with pytest.raises(AssertionError, match=r"first frames of the whole stream with its own future vs"):
+        for seed in range(20):
+            assert_framer_causal(lambda: Windows(peek_us=100), random_stream(seed, 300), seed)
+
+
+def test_cameras_independent_with_a_camera_that_sends_nothing():
+    streams = [random_stream(1, 300), random_stream(2, 0)]
+    assert_cameras_independent(LastSeen, streams, 1)
