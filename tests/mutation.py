@@ -17,6 +17,7 @@ Numba's cache goes to a fresh folder per run, so no compiled code outlives a run
 from __future__ import annotations
 
 import ast
+import fnmatch
 import json
 import os
 import re
@@ -60,7 +61,62 @@ IGNORE = shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc", "*.pyc")
 # Mutants no input can tell from the code (docs/testing.md says why for each): counted apart, not as
 # survivors. mutmut names a mutant by function and number, so a name here holds while that function's
 # source is unchanged.
-EQUIVALENT: dict[str, str] = {}
+_EQUIVALENT_BY_REASON: dict[str, list[str]] = {
+    # evstream/testing.py
+    "np.random.default_rng returns a Generator it is given unaltered": ["evstream.testing.x__rng__mutmut_1"],
+    "random_stream: a constant of the stress stream changed, and the stream still has every stress the "
+    "kit relies on and test_random_stream_has_the_stress_it_promises pins (bursts, 60/30/10 % labels, a "
+    "blob crossing the sensor, hot pixels, all four borders, int64 t)": [
+        f"evstream.testing.x_random_stream__mutmut_{n}" for n in (
+            1, 2, 23, 28, 31, 53, 61, 65, 69, 71, 72, 76, 78, 79, 80, 82, 83, 94, 101, 103, 105, 114, 121, 122,
+            123, 125, 133, 135, 138, 140, 151, 153, 156, 158, 163, 167, 170, 175, 179, 181, 182, 184)],
+    "random_bounds with n = 0: every cut is 0 whatever the array's length, dtype or draw, and the set "
+    "keeps one": [f"evstream.testing.x_random_bounds__mutmut_{n}" for n in (15, 29, 31, 32, 33)],
+    "rng.integers(n - 1) is rng.integers(0, n - 1)": ["evstream.testing.x_random_bounds__mutmut_41"],
+    "random_bounds: cuts drawn from 1..n or 0..n-2 instead of 0..n: still valid bounds with every kind of "
+    "split (test_random_bounds_draw_every_kind_of_split passes); `<= 0.3` for `< 0.3` on a float draw": [
+        f"evstream.testing.x_random_bounds__mutmut_{n}" for n in (23, 24, 58)],
+    "one more, empty, chunk after the one-event chunks: a stage's output for it is empty":
+        ["evstream.testing.x_one_event_chunks__mutmut_8"],
+    "concat takes the geometry from the chunks when given none": [
+        f"evstream.testing.x_classify_all__mutmut_{n}" for n in (6, 8)],
+    "another default seed, number of splits or cuts, or chunk length: the checks hold for any": [
+        "evstream.testing.x_assert_causal__mutmut_1", "evstream.testing.x_assert_chunk_invariant__mutmut_1",
+        "evstream.testing.x_assert_chunk_invariant__mutmut_2", "evstream.testing.x_assert_framer_causal__mutmut_1",
+        "evstream.testing.x_assert_framer_causal__mutmut_2", "evstream.testing.x_assert_cameras_independent__mutmut_1",
+        "evstream.testing.x_assert_bounded_state__mutmut_3"],
+    "the memory bound's threshold moved by one byte (`>=` for `>`, 4097 for 4096)": [
+        "evstream.testing.x_assert_bounded_state__mutmut_36", "evstream.testing.x_assert_bounded_state__mutmut_39"],
+    "t_end=None: a slice's watermark is then its last event's time, the value given": [
+        "evstream.testing.x_assert_framer_causal__mutmut_20"],
+    "the wording of the second future's failure message": [
+        "evstream.testing.x_assert_framer_causal__mutmut_26", "evstream.testing.x_assert_framer_causal__mutmut_27"],
+    "an empty camera's result built the same (other) way on both sides of the comparison": [
+        f"evstream.testing.x_assert_cameras_independent__mutmut_{n}" for n in (22, 24, 25)],
+    # evstream/denoise (baselines)
+    "STCF's padded map: shifting or mirroring every pixel's cell the same way (x - r, r - x, y - r; an "
+    "index below 0 wraps into never-written padding) and visiting the symmetric offsets as -o keep every "
+    "pixel's neighbourhood the same": [
+        f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (4, 5, 7, 13)],
+    "STCF top-k: inserting a timestamp equal to the k-th newest leaves the same k-th value": [
+        "evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_16"],
+    "want_score None for False, or the score computed and dropped: the same classes": [
+        "evstream.denoise.refractory.xǁRefractoryFilterǁclassify__mutmut_2",
+        "evstream.denoise.refractory.xǁRefractoryFilterǁclassify__mutmut_5",
+        "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_9"],
+    "np.empty(n, None) and np.empty(n) are float64, the dtype given": [
+        "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_11",
+        "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_13",
+        "evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁclassify_scored__mutmut_9",
+        "evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁclassify_scored__mutmut_11"],
+    "the state set in __post_init__ is replaced by _allocate before its first use": [
+        "evstream.denoise.refractory.xǁRefractoryFilterǁ__post_init____mutmut_15"],
+    "the last-event map as float64: NEVER_US (-2^62) and every time difference below 2^53 µs (285 years) "
+    "are exact, so the same comparisons": [
+        "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_4",
+        "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_7"],
+}
+EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 
 # The copy's root conftest: while mutmut runs a mutant, the tests that reach it run fastest first
 # (durations from mutmut's own clean run), so with `-x` a killed mutant costs its quickest failing
@@ -111,6 +167,27 @@ def plain_kernels(source: str) -> str:
     return "".join(line for i, line in enumerate(lines) if i not in drop)
 
 
+def _config(name: str, ws: Path, tests: list[str]) -> None:
+    """The copy's pyproject.toml ([tool.mutmut]: what to mutate, the tests, the limits) and the conftest
+    ordering each mutant's tests; rewritten on every run, so a resumed copy gets the current ones."""
+    (ws / "conftest.py").write_text(ORDER_CONFTEST)
+    pyproject = (ROOT / "pyproject.toml").read_text()
+    pyproject = re.sub(r"\[tool\.pytest\.ini_options\][^\[]*", "", pyproject)
+    (ws / "pyproject.toml").write_text(pyproject + "\n[tool.mutmut]\n" + "\n".join([
+        'source_paths = ["evstream"]',
+        f"only_mutate = {json.dumps(TARGETS[name][0])}",
+        f"pytest_add_cli_args_test_selection = {json.dumps(tests)}",
+        'pytest_add_cli_args = ["-p", "no:cacheprovider", "-q"]',
+        'also_copy = ["recordings", "conftest.py"]',
+        # mutmut stops a mutant after (clean duration of its tests + constant) x multiplier seconds of
+        # wall time (and twice that of CPU). The constant covers what the clean durations leave out
+        # (pytest's start, fixtures' setup) on a loaded machine: with 5 s, every mutant of a stage whose
+        # tests share a synthetic scene "timed out" (counted as killed) at load 7.
+        "timeout_multiplier = 3.0",
+        "timeout_constant = 30.0",
+    ]) + "\n")
+
+
 def workspace(name: str, ws: Path, tests: list[str]) -> Path:
     """`ws`: the package as it installs (sources/ and sinks/ inside evstream/), the tests, the shipped
     recordings and a pyproject.toml whose [tool.mutmut] names what to mutate and the tests to run."""
@@ -125,20 +202,7 @@ def workspace(name: str, ws: Path, tests: list[str]) -> Path:
         for path in ws.glob(pattern):
             if path.suffix == ".py":
                 path.write_text(plain_kernels(path.read_text()))
-    (ws / "conftest.py").write_text(ORDER_CONFTEST)
-    pyproject = (ROOT / "pyproject.toml").read_text()
-    pyproject = re.sub(r"\[tool\.pytest\.ini_options\][^\[]*", "", pyproject)
-    (ws / "pyproject.toml").write_text(pyproject + "\n[tool.mutmut]\n" + "\n".join([
-        'source_paths = ["evstream"]',
-        f"only_mutate = {json.dumps(mutate)}",
-        f"pytest_add_cli_args_test_selection = {json.dumps(tests)}",
-        'pytest_add_cli_args = ["-p", "no:cacheprovider", "-q"]',
-        'also_copy = ["recordings", "conftest.py"]',
-        # a CPU-time limit of 4 x (the tests' clean duration + 5 s): the mutation profile's examples
-        # are derandomized, so a mutant needing more loops (mutmut's default allows 30 x)
-        "timeout_multiplier = 2.0",
-        "timeout_constant = 5.0",
-    ]) + "\n")
+    _config(name, ws, tests)
     return ws
 
 
@@ -185,18 +249,29 @@ def _same_sources(name: str, ws: Path) -> bool:
     return True
 
 
-def _copy(name: str, ws: Path, tests: list[str], reuse: bool) -> Path:
-    if reuse and (ws / "mutants").is_dir() and _same_sources(name, ws):
-        shutil.copytree(ROOT / "tests", ws / "tests", dirs_exist_ok=True, ignore=IGNORE)  # new tests too
+def _copy(name: str, ws: Path, tests: list[str]) -> Path:
+    """Resume the copy in `ws` if it was made from the files to mutate as they are now (mutmut keeps
+    each mutant's result; new tests are copied in), else make a fresh one."""
+    if (ws / "mutants").is_dir() and _same_sources(name, ws):
+        shutil.copytree(ROOT / "tests", ws / "tests", dirs_exist_ok=True, ignore=IGNORE)
+        _config(name, ws, tests)
         return ws
     return workspace(name, ws, tests)
 
 
-def run(name: str, only: list[str] = ()) -> dict:
-    """Mutate and test module `name`; with `only` (mutant-name globs, e.g. '*.x_accumulate__*'), just
-    those, in the copy left by an earlier run if there is one (mutmut keeps each mutant's result)."""
-    ws = OUT / name
-    status = mutmut(_copy(name, ws, TARGETS[name][1], bool(only)), list(only))
+def run(name: str, only: list[str] = (), again: bool = False) -> dict:
+    """Mutate and test module `name`, resuming an earlier run of the same sources (remove
+    out/mutation/NAME to start over). With `only` (mutant-name globs, e.g. '*.x_accumulate__*'), just
+    those not run yet or timed out (the one verdict that depends on the machine's load); with `again`,
+    those whatever their earlier result."""
+    ws = _copy(name, OUT / name, TARGETS[name][1])
+    names = list(only)
+    if only and not again and (ws / "mutants").is_dir():
+        names = [m for m, s in statuses(ws).items() if s in ("not checked", "timeout")
+                 and any(fnmatch.fnmatchcase(m, g) for g in only)]
+        if not names:
+            names = ["-"]  # nothing left: mutmut's names must match no mutant rather than be empty
+    status = mutmut(ws, names)
     result = score(status)
     (ws / "score.json").write_text(json.dumps(result, indent=1))
     return result
@@ -216,13 +291,14 @@ def dry(name: str) -> int:
 def main(argv: list[str]) -> int:
     if argv[:1] == ["--dry"]:
         return max(dry(n) for n in argv[1:])
-    only = []
-    if "--only" in argv:  # python tests/mutation.py codecs --only '*.x__decode_kernel__*' ...
+    only, again = [], "--again" in argv
+    argv = [a for a in argv if a != "--again"]
+    if "--only" in argv:  # python tests/mutation.py codecs --only '*.x__decode_kernel__*' ... [--again]
         only = argv[argv.index("--only") + 1:]
         argv = argv[:argv.index("--only")]
     names = [n for a in (argv or list(TARGETS)) for n in ALIASES.get(a, [a])]
     for name in names:
-        r = run(name, only)
+        r = run(name, only, again)
         c = r["counts"]
         pct = "n/a" if r["score"] is None else f"{100 * r['score']:.1f} %"
         print(f"{name}: {pct} killed ({c.get('killed', 0)} killed, {c.get('timeout', 0)} timeout, "

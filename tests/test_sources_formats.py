@@ -1,6 +1,7 @@
 """Each reader on files we write: round trips, detection by content (not extension), chunking by count
 and by time, watermarks, geometry override, timestamp policies, clock unwrapping, constant memory."""
 
+import re
 import struct
 import tracemalloc
 import zlib
@@ -364,3 +365,34 @@ def test_hdf5_mvsec_and_dsec_layouts(tmp_path):
             f[f"events/{k}"] = getattr(s, k)
         f["t_offset"] = np.int64(47_000_000)
     same(concat(list(open_source(tmp_path / "dsec.h5"))), s.replace(t=s.t + 47_000_000))
+
+
+def test_to_events_normalises_every_column_and_names_a_bad_value_by_event_and_byte(tmp_path):
+    """The one conversion every reader's columns go through: t to int64 µs (rounded, any unit), x and y
+    to uint16 pixel indices, p to 1 = ON; a value that cannot be one names its event, column and byte."""
+    from evstream.sources._base import FileSource, to_events
+
+    (tmp_path / "f.csv").write_text("")
+    src = FileSource(tmp_path / "f.csv")
+    b = to_events(src, np.array([1, 2], np.uint32), [0, 65535], np.array([3, 4], np.int64), [-1, 2], "us")
+    assert b.t.dtype == np.int64 and b.t.tolist() == [1, 2] and b.x.tolist() == [0, 65535] and b.y.tolist() == [3, 4]
+    assert b.x.dtype == b.y.dtype == np.uint16 and b.p.dtype == np.uint8 and b.p.tolist() == [0, 1]
+    assert (b.byte_start, b.byte_end, b.record_bytes) == (0, 0, 0)
+    b = to_events(src, [1.4, 2.6], [1.0, 2.0], [0, 0], np.array([True, False]), "us", 10, 30, 8)
+    assert b.t.tolist() == [1, 3] and b.x.tolist() == [1, 2] and b.p.tolist() == [1, 0]
+    assert (b.byte_start, b.byte_end, b.record_bytes) == (10, 30, 8)
+    assert to_events(src, np.array([2, 3], np.int64), [0, 0], [0, 0], [0, 0], "ms").t.tolist() == [2000, 3000]
+    assert to_events(src, [1.5e-6, 2.5e-3], [0, 0], [0, 0], [0, 0], "s").t.tolist() == [2, 2500]
+    with pytest.raises(ValueError, match=r"^time_unit 'h': choose from s, ms, us, ns$"):
+        to_events(src, [1], [0], [0], [0], "h")
+    # (the value as numpy writes it: "np.float64(nan)" under NumPy 2, "nan" before)
+    for t, x, y, at, event, what in (([1.0, np.nan], [0, 0], [0, 0], 10, 1, r"timestamp \S*nan"),
+                                     ([1.0, 2.0, np.inf], [0, 0, 0], [0, 0, 0], 0, 2, r"timestamp \S*inf"),
+                                     ([1, 2], [0, 65536], [0, 0], 10, 1, r"x = \S*65536\W*: not a pixel index"),
+                                     ([1, 2], [0, 1], [0, -1], 10, 1, r"y = \S*-1\W*: not"),
+                                     ([1, 2], [1.0, 2.5], [0, 0], 10, 1, r"x = \S*2\.5"),
+                                     ([1, 2], [0.0, 0.0], [-1.0, 0.0], 0, 0, r"y = \S*-1\.0"),
+                                     ([1, 2], [70000.0, 1.0], [0, 0], 10, 0, r"x = \S*70000\.0")):
+        where = f" at byte {at}" if at else ""
+        with pytest.raises(EventError, match=rf"^{re.escape(src.path)}{where}: event {event} of a block has {what}"):
+            to_events(src, t, x, y, [0] * len(t), "s" if isinstance(t[0], float) else "us", at)
