@@ -9,6 +9,7 @@ bounded in memory (see `evstream.testing`).
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import inspect
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -272,6 +273,8 @@ class Pipeline:
 
 # -- registry of stage and framer kinds ---------------------------------------------------------
 _REGISTRY: dict[str, dict[str, Callable[..., Any]]] = {"stage": {}, "framer": {}}
+# kind -> the module that registers it when imported: listed at once, imported when first built or looked at
+_DECLARED: dict[str, dict[str, str]] = {"stage": {}, "framer": {}}
 
 
 def register(role: str, kind: str):
@@ -285,19 +288,36 @@ def register(role: str, kind: str):
     return deco
 
 
+def declare(role: str, module: str, *kinds: str) -> None:
+    """Name the kinds `module` registers when imported, without importing it: a command building one
+    denoise stage does not import every filter (start-up)."""
+    for kind in kinds:
+        _DECLARED[role][kind] = module
+
+
 def _load_plugins() -> None:
-    # Importing the packages registers their stages and framers.
+    # Importing the packages registers (or declares) their stages and framers.
     from . import denoise, framing, transforms  # noqa: F401
+
+
+def _known(role: str) -> list[str]:
+    return sorted(set(_REGISTRY[role]) | set(_DECLARED[role]))
 
 
 def kinds(role: str) -> list[str]:
     _load_plugins()
-    return sorted(_REGISTRY[role])
+    return _known(role)
 
 
 def factory(role: str, kind: str):
     """The class (or function) registered as `kind`, unbuilt: for listings of its parameters."""
     _load_plugins()
+    return _factory(role, kind)
+
+
+def _factory(role: str, kind: str):
+    if kind not in _REGISTRY[role] and kind in _DECLARED[role]:
+        importlib.import_module(_DECLARED[role][kind])  # registers it
     return _REGISTRY[role][kind]
 
 
@@ -307,10 +327,10 @@ def build(role: str, spec: dict[str, Any]):
     spec = dict(spec)
     kind = spec.pop("kind", None)
     if kind is None:
-        raise ValueError(f"a {role} needs kind = one of {', '.join(sorted(_REGISTRY[role]))}")
-    if kind not in _REGISTRY[role]:
-        raise ValueError(f"unknown {role} kind {kind!r}; known: {', '.join(sorted(_REGISTRY[role]))}")
-    factory = _REGISTRY[role][kind]
+        raise ValueError(f"a {role} needs kind = one of {', '.join(_known(role))}")
+    if kind not in _known(role):
+        raise ValueError(f"unknown {role} kind {kind!r}; known: {', '.join(_known(role))}")
+    factory = _factory(role, kind)
     accepted = _parameters(factory)
     unknown = sorted(set(spec) - set(accepted)) if accepted is not None else []
     if unknown:  # name what it takes, not Python's "__init__() got an unexpected keyword argument"

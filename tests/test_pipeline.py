@@ -87,3 +87,22 @@ def test_paced_follows_event_time():
     assert list(paced(chunks, 0)) == chunks
     with pytest.raises(ValueError):
         list(paced(chunks, -1))
+
+
+def test_the_declared_denoise_kinds_are_what_their_modules_register():
+    """evstream.denoise names each stage kind's module without importing it (start-up); importing every
+    module of the package registers exactly the declared kinds, each from its declared module."""
+    import importlib
+    import pkgutil
+
+    import evstream.denoise as denoise
+    from evstream.pipeline import _DECLARED, _REGISTRY
+
+    for info in pkgutil.walk_packages(denoise.__path__, denoise.__name__ + "."):
+        importlib.import_module(info.name)
+    registered = {kind: f.__module__ for kind, f in _REGISTRY["stage"].items()
+                  if f.__module__.startswith(denoise.__name__ + ".")}
+    declared = {kind: module for kind, module in _DECLARED["stage"].items()}
+    assert set(registered) == set(declared)
+    for kind, module in registered.items():
+        assert module == declared[kind] or module.startswith(declared[kind] + "."), (kind, module)
