@@ -23,6 +23,7 @@ from __future__ import annotations
 import builtins
 import json
 import os
+import struct
 import zipfile
 import zlib
 from collections.abc import Iterable, Iterator
@@ -190,7 +191,7 @@ class NativeSource:
                 raise
             raise EventError(f"{self.path}: unreadable native file: {e}") from None
         k = int(np.searchsorted(index["t_max"], start_us, side="left"))  # every event before it is earlier
-        if k == 0:
+        if k == 0 or (k < len(index) and not self._flush_points_at(index, k)):
             return False
         self._seek = (k, index)
         self._first_row = int(index["row"][k]) if k < len(index) else self.n_events
@@ -218,6 +219,24 @@ class NativeSource:
             at, size = index[f"{c}_at"], self._infos[c].compress_size
             if at[0] != 0 or np.any(at[1:] <= at[:-1]) or at[-1] >= size:
                 raise ValueError(f"array 'seek': the blocks of {c!r} do not start inside its {size} bytes, rising")
+
+    def _flush_points_at(self, index: np.ndarray, k: int) -> bool:
+        """Whether block k of every column starts at a flush point of its deflate stream: the 4 bytes
+        before it are the empty stored block a full flush ends with (00 00 FF FF). A file whose members
+        were compressed again (re-zipped, the index carried along) has none there: read from the start."""
+        with builtins.open(self.path, "rb") as f:
+            for c in self._column_names():
+                info = self._infos[c]
+                if info.compress_type != zipfile.ZIP_DEFLATED:
+                    return False
+                f.seek(info.header_offset + 26)
+                local = f.read(4)
+                if len(local) < 4:
+                    return False
+                f.seek(info.header_offset + 30 + sum(struct.unpack("<HH", local)) + int(index[f"{c}_at"][k]) - 4)
+                if f.read(4) != b"\x00\x00\xff\xff":
+                    return False
+        return True
 
     def _column_names(self) -> tuple[str, ...]:
         return ("t", "x", "y", "p", *(["label"] if self.has_labels else []))

@@ -110,6 +110,22 @@ def test_older_native_files_and_stored_ones_are_read_from_the_start(tmp_path):
         assert_same(got, want)
 
 
+def test_a_file_zipped_again_is_read_from_the_start(tmp_path):
+    """Members compressed again by another zip writer (the seek index carried along, now stale) or stored:
+    its flush points are gone, so the file is read from the start, with the same events."""
+    s = bursty(7, 200_000)
+    path = tmp_path / "r.npz"
+    native.save(path, s)
+    for method in (zipfile.ZIP_DEFLATED, zipfile.ZIP_STORED):
+        again = tmp_path / f"again{method}.npz"
+        with zipfile.ZipFile(path) as zi, zipfile.ZipFile(again, "w", method) as zo:
+            for name in zi.namelist():
+                zo.writestr(name, zi.read(name))
+        got, want, seeks = read_range(again, int(s.t[150_000]))
+        assert not seeks
+        assert_same(got, want)
+
+
 def compressed_spans(path, column):
     """(start of the member's data in the file, its seek index) of `column` in a native file."""
     z = zipfile.ZipFile(path)
