@@ -265,8 +265,8 @@ class AtomicFolder:
                 written[dest] = set(files)
                 for name in files:
                     os.replace(Path(folder) / name, dest / name)
-            for dest, names in written.items():
-                for pattern in self.replaces:
+            for dest, names in written.items():  # only in folders this run wrote files into
+                for pattern in self.replaces if names else ():
                     for old in dest.glob(pattern):
                         if old.name not in names and old.is_file():
                             old.unlink()

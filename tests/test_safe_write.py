@@ -345,3 +345,24 @@ def test_eval_never_writes_its_rows_or_plot_over_a_recording_it_reads(tmp_path, 
         rc, _, err = run(["eval", *argv, "--methods", "baf", "--ratios", "1.0", "--seeds", "1"], capsys)
         assert rc == 2 and "that is the input recording" in one_line_error(err)
         assert rec.read_bytes() == SHIPPED.read_bytes()
+
+
+def test_atomic_folder_replaces_stale_frames_only_where_it_wrote(tmp_path):
+    from evstream.safe_write import AtomicFolder
+
+    out = tmp_path / "frames"
+    (out / "fw").mkdir(parents=True)
+    for name in ("frame_000000.png", "fw/frame_000000.png", "fw/frame_000001.png", "notes.txt"):
+        (out / name).write_bytes(b"old")
+    with AtomicFolder(out, replaces=("frame_*.png",)) as part:
+        (part / "fw").mkdir()
+        (part / "fw" / "frame_000000.png").write_bytes(b"new")
+        assert part.name == "frames.part" and not (out / "fw" / "frame_000000.png").read_bytes() == b"new"
+    got = {str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert got == {"frame_000000.png": b"old", "fw/frame_000000.png": b"new", "notes.txt": b"old"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames"]
+    with pytest.raises(RuntimeError), AtomicFolder(out, replaces=("frame_*.png",)) as part:
+        (part / "frame_000000.png").write_bytes(b"newer")
+        raise RuntimeError("failed")
+    assert (out / "frame_000000.png").read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "frames"]
