@@ -108,7 +108,8 @@ class RawSource(FileSource):
         self.version = version or header_version(self.header)
         if self.version is None:
             raise self.error(f"RAW header (bytes 0..{self.body_offset}) names no EVT version (no '% evt' or "
-                             "'% format' line); pass version='evt2' or 'evt3'")
+                             "'% format' line): damaged, or not a Prophesee RAW file; from Python, "
+                             "evstream.sources.open_source(path, version='evt3') reads it as EVT 3.0")
         if self.version not in ("evt2", "evt3"):
             raise self.error(f"RAW {self.version} is not supported (EVT 2.0 and 3.0 are)")
         self.format = self.version

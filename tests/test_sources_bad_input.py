@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_sources_formats import write_dat, write_mat, write_nmnist
 
-from evstream.events import EventError, Geometry
+from evstream.events import EventError, Geometry, concat
 from evstream.testing import random_stream
 
 G = Geometry(128, 128)
@@ -97,8 +97,9 @@ def test_a_wrong_header_version_is_caught(tmp_path, samples):
     with pytest.raises(EventError, match=r"w.raw at byte \d+: .*(not EVT2 data|outside)"):
         read_all(tmp_path / "w.raw")
     (tmp_path / "v.raw").write_bytes(b"% evt 9.0\n% end\n" + evt3_body)
-    with pytest.raises(EventError, match="no EVT version"):
-        open_source(tmp_path / "v.raw")
+    with pytest.raises(EventError, match=r"v.raw: RAW header \(bytes 0..16\) names no EVT version"):
+        open_source(tmp_path / "v.raw")  # it named no byte, and advised a version= that evstream.open lacks
+    assert len(concat(list(open_source(tmp_path / "v.raw", version="evt3")))) > 0  # what the error advises
     (tmp_path / "u.raw").write_bytes(b"% evt 2.1\n% end\n" + evt3_body)
     with pytest.raises(EventError, match="evt2.1 is not supported"):
         open_source(tmp_path / "u.raw")
