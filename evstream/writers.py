@@ -23,7 +23,7 @@ from typing import Any
 
 from .events import EventChunk, NoiseClass, concat
 from .pipeline import Batch, Pipeline, RunStats, build, paced
-from .safe_write import AtomicOutput, is_no_space, no_space_error
+from .safe_write import AtomicOutput, being_read, is_no_space, no_space_error
 from .threads import ReadAhead, enabled
 
 FILE_FORMATS = {".npz": "native", ".raw": "evt", ".h5": "hdf5", ".hdf5": "hdf5"}
@@ -43,7 +43,6 @@ def open_sink(out, *, geometry=None, keep_noise: bool = False, framer: str | Non
     place: when it is garbage-collected (or the script ends) its temporary is removed, with a warning.
     """
     from .api import as_geometry
-    from .safe_write import being_read
 
     if geometry is None and source is not None:
         geometry = source.geometry
@@ -308,7 +307,7 @@ def convert(path, out, *, evt: int | str = 3, on_progress=None, **options) -> di
         raise ValueError(f"{out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
     source = open_recording(path, **options)
     meta = {"converted_from": str(path), "source_format": getattr(source, "format", "?")}
-    sink = FileSink(out, geometry=source.geometry, keep_noise=True, evt=evt, meta=meta, inputs=[path])
+    sink = FileSink(out, geometry=source.geometry, keep_noise=True, evt=evt, meta=meta, inputs=[path, *being_read()])
     writer = SinkWriter(sink)
     try:
         with writer, ReadAhead(source) if enabled(default=False) else contextlib.nullcontext(source) as chunks:
@@ -361,7 +360,8 @@ def archive(recording, out, *, pipeline: Pipeline | None = None, keep_noise: boo
     sink = McapSink(os.fspath(out), camera=camera, encoding=encoding, keep_noise=keep_noise,
                     frames=pipeline.framer is not None, frame_format=frame_format, points=points,
                     packet_us=packet_us, flush_s=flush_s, metadata=provenance,
-                    geometry=pipeline.out_geometry(source.geometry), inputs=[path] if path else [])
+                    geometry=pipeline.out_geometry(source.geometry),
+                    inputs=([path] if path else []) + being_read())  # nor any recording the script has open
     def stopped() -> bool:  # cut short: the archive so far is closed whole but kept aside, OUT left as it was
         if stop is not None and stop():
             sink.interrupt()

@@ -245,3 +245,23 @@ def test_a_script_that_ends_without_closing_its_sink_leaves_no_temporary(tmp_pat
     assert r.returncode == 0, r.stderr
     assert f"{out}: open_sink(...) was never closed" in r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_convert_and_archive_refuse_a_recording_the_script_has_open(tmp_path):
+    """`src = evstream.open(A)`, then `evstream.convert(B, A)` or `evstream.archive(B, A)` wrote over A."""
+    import shutil
+
+    from evstream.safe_write import OutputIsInput
+
+    raw, mcap = tmp_path / "a.raw", tmp_path / "a.mcap"
+    evstream.convert(BAR, raw)
+    evstream.archive(BAR, mcap)
+    before = raw.read_bytes(), mcap.read_bytes()
+    sources = [evstream.open(raw), evstream.open(mcap)]
+    shutil.copy(BAR, tmp_path / "b.npz")
+    with pytest.raises(OutputIsInput):
+        evstream.convert(tmp_path / "b.npz", raw)
+    with pytest.raises(OutputIsInput):
+        evstream.archive(tmp_path / "b.npz", mcap)
+    assert (raw.read_bytes(), mcap.read_bytes()) == before and len(sources) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap", "a.raw", "b.npz"]
