@@ -12,8 +12,10 @@ from __future__ import annotations
 import json
 import re
 import time
+from typing import TYPE_CHECKING
 
-import zenoh
+if TYPE_CHECKING:  # imported where used: every command's parser names this module's defaults (start-up)
+    import zenoh
 
 __all__ = [
     "BLOCK_WAIT_BEFORE_CLOSE_S", "DEFAULT_ENDPOINT", "DEFAULT_MAX_PACKET_BYTES", "MESSAGE_OVERHEAD_BYTES", "MODES",
@@ -48,6 +50,8 @@ def config(*, mode: str = "peer", listen=(), connect=(), multicast: bool = False
            max_packet_bytes: int = DEFAULT_MAX_PACKET_BYTES) -> zenoh.Config:
     """A Zenoh config with exactly these endpoints (none of Zenoh's all-interfaces defaults), refusing
     messages over `message_limit(max_packet_bytes)` (Zenoh's default is 1 GiB)."""
+    import zenoh
+
     if mode not in MODES:
         raise ValueError(f"Zenoh mode {mode!r}: choose from {', '.join(MODES)}")
     listen = [check_endpoint(e) for e in listen]
@@ -86,6 +90,8 @@ def open_session(*, mode: str | None = None, listen=(), connect=(), multicast: b
 
     A client whose router is not there fails at once (Zenoh's client default: no retry), with an OSError
     naming the endpoint and how to start a router."""
+    import zenoh
+
     mode, listen, connect = endpoints(mode, listen, connect)
     cfg = config(mode=mode, listen=listen, connect=connect, multicast=multicast,
                  max_packet_bytes=max_packet_bytes)
@@ -111,6 +117,8 @@ def drain(session: zenoh.Session, timeout_s: float = 10.0) -> bool:
     hop answers only after taking in what came before it; so when the query completes, the data left.
     True if it completed within `timeout_s`.
     """
+    import zenoh
+
     t0 = time.monotonic()
     try:
         for _ in session.get("@/**", timeout=timeout_s, congestion_control=zenoh.CongestionControl.BLOCK,
@@ -127,6 +135,8 @@ def watch_transports(session: zenoh.Session, warn) -> object:
     Zenoh reconnects by itself, so a subscriber whose router died would otherwise wait in silence while
     whatever is published meanwhile is lost. Keep the returned listener alive for as long as you watch.
     """
+    import zenoh
+
     def on_event(event) -> None:
         t = event.transport
         what = str(t.whatami).split(".")[-1].lower()
