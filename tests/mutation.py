@@ -98,8 +98,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "index below 0 wraps into never-written padding) and visiting the symmetric offsets as -o keep every "
     "pixel's neighbourhood the same": [
         f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (4, 5, 7, 13)],
-    "STCF top-k: inserting a timestamp equal to the k-th newest leaves the same k-th value": [
-        "evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_16"],
+    "STCF top-k: inserting a timestamp equal to the k-th newest, or shifting past equal ones, leaves the "
+    "same k newest values": [f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (16, 30)],
     "want_score None for False, or the score computed and dropped: the same classes": [
         "evstream.denoise.refractory.xǁRefractoryFilterǁclassify__mutmut_2",
         "evstream.denoise.refractory.xǁRefractoryFilterǁclassify__mutmut_5",
@@ -108,7 +108,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_11",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_13",
         "evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁclassify_scored__mutmut_9",
-        "evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁclassify_scored__mutmut_11"],
+        "evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁclassify_scored__mutmut_11",
+        "evstream.denoise.baf.xǁBackgroundActivityFilterǁclassify_scored__mutmut_9",
+        "evstream.denoise.baf.xǁBackgroundActivityFilterǁclassify_scored__mutmut_11"],
     "the state set in __post_init__ is replaced by _allocate before its first use": [
         "evstream.denoise.refractory.xǁRefractoryFilterǁ__post_init____mutmut_15"],
     "the last-event map as float64: NEVER_US (-2^62) and every time difference below 2^53 µs (285 years) "

@@ -382,6 +382,10 @@ def test_to_events_normalises_every_column_and_names_a_bad_value_by_event_and_by
     assert b.t.tolist() == [1, 3] and b.x.tolist() == [1, 2] and b.p.tolist() == [1, 0]
     assert (b.byte_start, b.byte_end, b.record_bytes) == (10, 30, 8)
     assert to_events(src, np.array([2, 3], np.int64), [0, 0], [0, 0], [0, 0], "ms").t.tolist() == [2000, 3000]
+    big = np.array([2**53 + 1, 2**62 + 3], np.int64)  # integer µs stay exact (no trip through float64)
+    assert to_events(src, big, [0, 0], [0, 0], [0, 0], "us").t.tolist() == big.tolist()
+    b = to_events(src, np.array([2.6, 3.2], np.float32), [0, 0], [0, 0], [0, 0], "us")
+    assert b.t.dtype == np.int64 and b.t.tolist() == [3, 3]
     assert to_events(src, [1.5e-6, 2.5e-3], [0, 0], [0, 0], [0, 0], "s").t.tolist() == [2, 2500]
     with pytest.raises(ValueError, match=r"^time_unit 'h': choose from s, ms, us, ns$"):
         to_events(src, [1], [0], [0], [0], "h")
@@ -392,7 +396,8 @@ def test_to_events_normalises_every_column_and_names_a_bad_value_by_event_and_by
                                      ([1, 2], [0, 1], [0, -1], 10, 1, r"y = \S*-1\W*: not"),
                                      ([1, 2], [1.0, 2.5], [0, 0], 10, 1, r"x = \S*2\.5"),
                                      ([1, 2], [0.0, 0.0], [-1.0, 0.0], 0, 0, r"y = \S*-1\.0"),
-                                     ([1, 2], [70000.0, 1.0], [0, 0], 10, 0, r"x = \S*70000\.0")):
+                                     ([1, 2], [70000.0, 1.0], [0, 0], 10, 0, r"x = \S*70000\.0"),
+                                     ([1, 2], np.array([1, 2.5], np.float32), [0, 0], 10, 1, r"x = \S*2\.5")):
         where = f" at byte {at}" if at else ""
         with pytest.raises(EventError, match=rf"^{re.escape(src.path)}{where}: event {event} of a block has {what}"):
             to_events(src, t, x, y, [0] * len(t), "s" if isinstance(t[0], float) else "us", at)
