@@ -12,6 +12,7 @@ with 3 Hz/pixel background activity and 0.1 % hot pixels, chunks of 10k events.
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -35,7 +36,10 @@ def _model(kind: str, hidden: int) -> Model:
                  threshold_grid=np.zeros(len(KEEP_GRID)), meta={"kind": kind, "hidden": hidden})
 
 
-def run(rounds: int = 7, chunk: int = 10_000) -> None:
+ROUNDS = int(os.environ.get("EVSTREAM_BENCH_ROUNDS", "7"))  # under load: 21 or more for steady chunk minima
+
+
+def run(rounds: int = ROUNDS, chunk: int = 10_000) -> None:
     g = Geometry(346, 260)
     duration = 1_000_000
     s = noisy_scene("turntable", g, duration)
