@@ -59,7 +59,7 @@ model: $(STAMP)
 	    --thin 0.3,0.1,0.03 --without dc_own,dc_nb8 --seed 0 --out evstream/denoise/learned/default_model.npz
 
 clean: clean-cache
-	rm -rf $(VENV) out .pytest_cache evstream/_aot.*
+	rm -rf $(VENV) out .pytest_cache evstream/_aot.* evstream/.aot-build-*
 
 # numba's compiled kernels (its cache misses edits to a helper another module's kernel inlined)
 clean-cache:

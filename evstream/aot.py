@@ -15,6 +15,7 @@ it) until this is run again. Other kernels, options or types are compiled by num
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 import json
 import os
@@ -73,8 +74,6 @@ def build(out_dir: Path | None = None) -> dict:
     """Compile the recorded kernels into `evstream._aot` and write the index; returns the index."""
     jit.use_aot(False)  # record what numba compiles, not what an older module serves
     out_dir = out_dir or Path(__file__).resolve().parent
-    with tempfile.TemporaryDirectory() as tmp:
-        kernels = record(Path(tmp))
     jit._numba()
     import numba.pycc.compiler as pycc_compiler
     from numba.core.compiler import Flags
@@ -86,24 +85,38 @@ def build(out_dir: Path | None = None) -> dict:
             self.release_gil = True
 
     pycc_compiler.Flags = ReleaseGil
-    cc = CC("_aot")
-    cc.output_dir = str(out_dir)
+    cc = CC("_aot")  # first: without a C compiler this fails at once, not after recording
     cc.target_cpu = "host"  # built where it runs, like numba's JIT
+    with tempfile.TemporaryDirectory() as tmp:
+        kernels = record(Path(tmp))
     index: dict = {"kernels": {}}
-    for kernel in kernels:
-        for sig in kernel.dispatcher.signatures:
-            keys = [arg_key(t) for t in sig]
-            if None in keys:
-                continue
-            symbol = f"k{sum(map(len, index['kernels'].values()))}"
-            cc.export(symbol, kernel.dispatcher.overloads[sig].signature)(kernel.py_func)
-            index["kernels"].setdefault(kernel.key, []).append([symbol, keys])
-    index["sources"] = jit.source_stamps(source_files())
-    index_path = out_dir / jit.AOT_INDEX.name
-    index_path.unlink(missing_ok=True)  # no index while the module is rewritten: a reader falls back to numba
-    cc.compile()
-    index_path.write_text(json.dumps(index, indent=1) + "\n")
+    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".aot-build-") as build_dir:
+        cc.output_dir = build_dir  # built aside, then moved in whole: a process loading the module meanwhile
+        # keeps the old file, and no index ever names a half-written one
+        for kernel in kernels:
+            for sig in kernel.dispatcher.signatures:
+                keys = [arg_key(t) for t in sig]
+                if None in keys:
+                    continue
+                symbol = symbol_name(kernel.key, keys)  # the same kernel, the same name in every build
+                cc.export(symbol, kernel.dispatcher.overloads[sig].signature)(kernel.py_func)
+                index["kernels"].setdefault(kernel.key, []).append([symbol, keys])
+        index["sources"] = jit.source_stamps(source_files())
+        index["cpu"] = jit.cpu_id()
+        cc.compile()
+        built = Path(build_dir) / cc.output_file
+        index["module"] = built.name
+        index["module_sha256"] = jit.file_digest(built)
+        index_tmp = Path(build_dir) / jit.AOT_INDEX.name
+        index_tmp.write_text(json.dumps(index, indent=1) + "\n")
+        os.replace(built, out_dir / built.name)
+        os.replace(index_tmp, out_dir / jit.AOT_INDEX.name)
     return index
+
+
+def symbol_name(kernel_key: str, arg_keys: list) -> str:
+    """The module's name for one kernel's variant, from its key and argument types."""
+    return "k" + hashlib.sha256(json.dumps([kernel_key, arg_keys]).encode()).hexdigest()[:20]
 
 
 def source_files() -> list[Path]:
@@ -115,13 +128,19 @@ def source_files() -> list[Path]:
     return sorted({p.resolve() for folder in folders for p in folder.rglob("*.py")})
 
 
-def main() -> None:
+def main() -> int:
     t0 = time.perf_counter()
-    index = build()
+    try:
+        index = build()
+    except Exception as e:  # no C compiler, a failed link: the commands still run, numba compiling
+        reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        print(f"evstream.aot: evstream._aot not built ({type(e).__name__}: {reason})", file=sys.stderr)
+        return 1
     n = sum(map(len, index["kernels"].values()))
     print(f"evstream._aot: {n} kernels ahead of time ({len(index['kernels'])} kinds) in "
           f"{time.perf_counter() - t0:.0f} s")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -104,13 +104,13 @@ def test_other_argument_types_go_to_numba():
 
 @needs_aot
 def test_a_changed_source_file_sets_the_module_aside(tmp_path):
-    index = json.loads(jit.AOT_INDEX.read_text())
-    (tmp_path / "same.json").write_text(json.dumps(index))
-    assert jit.load_aot(tmp_path / "same.json")
+    _, index = _copy_of_the_module(tmp_path)
+    index_path = tmp_path / jit.AOT_INDEX.name
+    assert jit.load_aot(index_path)
     path = next(iter(index["sources"]))
     index["sources"][path][1] += 1  # as if edited after the build
-    (tmp_path / "edited.json").write_text(json.dumps(index))
-    assert jit.load_aot(tmp_path / "edited.json") == {}
+    index_path.write_text(json.dumps(index))
+    assert jit.load_aot(index_path) == {}
     assert jit.load_aot(tmp_path / "missing.json") == {}
 
 
@@ -139,3 +139,52 @@ def test_importing_the_package_does_not_import_numba():
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).parents[1])
     assert out.stdout.strip() == "[]"
+
+
+def _copy_of_the_module(folder: Path) -> tuple[Path, dict]:
+    index = json.loads(jit.AOT_INDEX.read_text())
+    module = jit.AOT_INDEX.with_name(index["module"])
+    (folder / module.name).write_bytes(module.read_bytes())
+    (folder / jit.AOT_INDEX.name).write_text(json.dumps(index))
+    return folder / module.name, index
+
+
+@needs_aot
+def test_a_cut_short_or_damaged_module_file_is_set_aside_before_it_is_loaded(tmp_path):
+    """Loading a truncated shared object kills the process (SIGBUS), a damaged one may run garbage (SIGILL):
+    no ImportError to catch. The index names its module file's SHA-256, checked first; the module is the
+    file beside the index, never another build's."""
+    module, _ = _copy_of_the_module(tmp_path)
+    index_path = tmp_path / jit.AOT_INDEX.name
+    assert jit.load_aot(index_path)  # an intact copy loads, from where its index is
+    whole = module.read_bytes()
+    module.write_bytes(whole[: len(whole) // 3])
+    assert jit.load_aot(index_path) == {}
+    damaged = bytearray(whole)
+    damaged[len(whole) // 2] ^= 0xFF
+    module.write_bytes(bytes(damaged))
+    assert jit.load_aot(index_path) == {}
+    module.unlink()
+    assert jit.load_aot(index_path) == {}
+
+
+@needs_aot
+def test_a_module_built_for_another_cpu_is_set_aside(tmp_path):
+    """It is compiled for the host CPU: on another (a copied venv, a shared disk) it could die on an illegal
+    instruction."""
+    _, index = _copy_of_the_module(tmp_path)
+    index["cpu"] = "another cpu"
+    (tmp_path / jit.AOT_INDEX.name).write_text(json.dumps(index))
+    assert jit.load_aot(tmp_path / jit.AOT_INDEX.name) == {}
+
+
+def test_no_c_compiler_is_one_line_and_leaves_the_module_as_it_was(tmp_path):
+    """`python -m evstream.aot` without a working C compiler (CC=false) says so in one line and exits 1,
+    before recording anything; the module and index are left as they were."""
+    before = {p.name: p.read_bytes() for p in jit.AOT_INDEX.parent.glob("_aot.*")}
+    out = subprocess.run([sys.executable, "-m", "evstream.aot"], capture_output=True, text=True,
+                         env=dict(os.environ, CC="false"), cwd=tmp_path)
+    assert out.returncode == 1, out
+    assert "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert out.stderr.startswith("evstream.aot: evstream._aot not built"), out.stderr
+    assert {p.name: p.read_bytes() for p in jit.AOT_INDEX.parent.glob("_aot.*")} == before
