@@ -449,3 +449,18 @@ def test_scored_stage_call_matches_the_plain_call(name):
     seen = pre.cls == SIG
     assert np.isnan(scores[~seen]).all() and not np.isnan(scores[seen]).any() and (~seen).any()
     np.testing.assert_array_equal(scores[seen], cls_().classify_scored(s[np.flatnonzero(seen)])[1])
+
+
+def test_truth_and_keep_signal_stages():
+    """The oracle copies the labels (a copy: the stage's output does not alias its input) and refuses
+    unlabelled events in one line; keep_signal drops what is not SIGNAL, and keeps an unclassed chunk."""
+    s = random_stream(2, 200)
+    out = build("stage", {"kind": "truth"})(s)
+    assert np.array_equal(out.cls, s.label) and out.cls is not s.label and np.array_equal(out.t, s.t)
+    with pytest.raises(ValueError, match=r"^the 'truth' stage needs labelled events \(synthetic or injected"):
+        build("stage", {"kind": "truth"})(s.replace(label=None))
+    keep = build("stage", {"kind": "keep_signal"})
+    kept = keep(out)
+    assert np.array_equal(kept.t, s.t[s.label == SIG]) and (kept.cls == SIG).all()
+    unclassed = s.replace(cls=None)
+    assert keep(unclassed) is unclassed
