@@ -103,6 +103,7 @@ def build(out_dir: Path | None = None) -> dict:
                 index["kernels"].setdefault(kernel.key, []).append([symbol, keys])
         index["sources"] = jit.source_stamps(source_files())
         index["cpu"] = jit.cpu_id()
+        index["package"] = str(Path(jit.__file__).resolve().parent)
         cc.compile()
         built = Path(build_dir) / cc.output_file
         index["module"] = built.name

@@ -112,6 +112,10 @@ def test_a_changed_source_file_sets_the_module_aside(tmp_path):
     index_path.write_text(json.dumps(index))
     assert jit.load_aot(index_path) == {}
     assert jit.load_aot(tmp_path / "missing.json") == {}
+    index = json.loads(jit.AOT_INDEX.read_text())
+    index["package"] = str(tmp_path / "evstream")  # built for a copy of the package elsewhere
+    (tmp_path / "elsewhere.json").write_text(json.dumps(index))
+    assert jit.load_aot(tmp_path / "elsewhere.json") == {}
 
 
 @needs_aot
