@@ -483,3 +483,27 @@ def test_checks_say_which_check_failed():
 def test_cameras_independent_with_a_camera_that_sends_nothing():
     streams = [random_stream(1, 300), random_stream(2, 0)]
     assert_cameras_independent(LastSeen, streams, 1)
+
+
+class FlushesOnTightWatermark(Windows):
+    """Breaks causality only when a chunk's watermark is its last event's time (as a source's last
+    chunk has): it then flushes its open frame as if the stream had ended."""
+
+    def push(self, chunk):
+        out = super().push(chunk)
+        if len(chunk) and self.events and chunk.t_end == chunk.t[-1]:
+            counts = np.zeros((2, chunk.geometry.height, chunk.geometry.width), np.uint16)
+            for x, y, p in self.events:
+                counts[p, y, x] += 1
+            out.append(Frame(self.start, self.start + self.window_us, len(self.events), counts))
+            self.events = []
+        return out
+
+
+def test_framer_causality_gives_the_prefix_the_watermark_of_its_last_event():
+    """The prefix's watermark is its last event's time, not an earlier one: a framer that misbehaves
+    exactly there is caught."""
+    with pytest.raises(AssertionError, match="first frames of the whole stream"):
+        for seed in range(20):
+            s = random_stream(seed, 300)  # distinct times: an earlier event's time is never the last one's
+            assert_framer_causal(FlushesOnTightWatermark, s.replace(cls=None, t=37 * np.arange(300)), seed)
