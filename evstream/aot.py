@@ -4,9 +4,10 @@ without numba (evstream.jit).
     python -m evstream.aot          # make .venv/.installed runs it; a few minutes on a cold numba cache
 
 Which kernels, for which argument types: those the commands call on a small synthetic recording — `archive
---denoise paper` of a .raw and a .npz, `replay --denoise paper --save`, `convert` both ways — run here
-under numba's JIT; each (kernel, closure values, argument types) seen from Python is exported with
-numba.pycc, for this machine's CPU (as the JIT compiles), releasing the GIL as `nogil` kernels do. The
+--denoise paper` of a .raw and a .npz, `replay --denoise paper --save`, `replay --framer fw --save`
+(`make demo`), `convert` both ways — run here under numba's JIT; each (kernel, closure values, argument
+types) seen from Python is exported with numba.pycc, for this machine's CPU (as the JIT compiles),
+releasing the GIL as `nogil` kernels do. The
 index `evstream/_aot.json` maps kernel keys and argument types to the module's functions and records the
 size and time of every source file: after an edit the module is ignored (numba compiles, as without
 it) until this is run again. Other kernels, options or types are compiled by numba as before.
@@ -33,6 +34,7 @@ COMMANDS = (
     ["replay", "{raw}", "--denoise", "paper", "--save", "{out}/r.rrd", "-q"],
     ["convert", "{raw}", "{out}/c.raw", "-q"],
     ["convert", "{npz}", "{out}/d.raw", "-q"],
+    ["replay", "{npz}", "--framer", "fw", "--save", "{out}/f.rrd", "-q"],  # make demo, README's first command
 )
 OPTIONS = {"cache", "nogil", "inline"}  # kernels compiled with other numba options stay with the JIT
 
