@@ -186,6 +186,9 @@ def _aot_index() -> dict:
     return {} if _plain() else load_aot(AOT_INDEX)
 
 
+_MODULES: list = []  # the ahead-of-time modules loaded (kept alive)
+
+
 def load_aot(index_path: Path) -> dict:
     """{kernel key: {argument keys: function}} of `evstream._aot` as `index_path` describes it, or {} when
     either is missing, they were built from other sources than these, the module file is not the one the
@@ -204,6 +207,7 @@ def load_aot(index_path: Path) -> dict:
         spec = importlib.util.spec_from_file_location("evstream._aot", module_path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
+        _MODULES.append(module)  # alive as long as the process, as an imported module (sys.modules)
         return {key: {_decode(arg_keys): getattr(module, symbol) for symbol, arg_keys in entries}
                 for key, entries in index["kernels"].items()}
     except (OSError, ValueError, KeyError, TypeError, ImportError, AttributeError):

@@ -158,9 +158,11 @@ def test_a_cut_short_or_damaged_module_file_is_set_aside_before_it_is_loaded(tmp
     """Loading a truncated shared object kills the process (SIGBUS), a damaged one may run garbage (SIGILL):
     no ImportError to catch. The index names its module file's SHA-256, checked first; the module is the
     file beside the index, never another build's."""
-    module, _ = _copy_of_the_module(tmp_path)
+    (tmp_path / "intact").mkdir()
+    _copy_of_the_module(tmp_path / "intact")
+    assert jit.load_aot(tmp_path / "intact" / jit.AOT_INDEX.name)  # an intact copy loads, from beside its index
+    module, _ = _copy_of_the_module(tmp_path)  # (not the file loaded above: cutting a loaded one short kills)
     index_path = tmp_path / jit.AOT_INDEX.name
-    assert jit.load_aot(index_path)  # an intact copy loads, from where its index is
     whole = module.read_bytes()
     module.write_bytes(whole[: len(whole) // 3])
     assert jit.load_aot(index_path) == {}
