@@ -25,8 +25,14 @@ evstream/_aot.json: $(SOURCES) pyproject.toml
 demo: $(STAMP)
 	$(BIN)/evstream replay recordings/turntable.npz --framer fw --save out/turntable.rrd
 
-test: $(STAMP) aot
+test: $(STAMP) aot $(VENV)/.numba-cache
 	$(BIN)/python -m pytest -q
+
+# numba keys a cached kernel on its own file only: after an edit to a helper it inlines from another file the
+# old kernel would still run, so the tests start from an empty cache whenever a source file changed.
+$(VENV)/.numba-cache: $(SOURCES)
+	$(MAKE) --no-print-directory clean-cache
+	touch $@
 
 # Mutation testing (docs/testing.md), not part of CI: hours for all modules on 2 cores.
 # `make mutation MODULES="testing codecs"` for some; scores and survivors under out/mutation/.
