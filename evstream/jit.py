@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.machinery
 import importlib.util
 import json
 import os
@@ -192,8 +193,8 @@ _MODULES: list = []  # the ahead-of-time modules loaded (kept alive)
 def load_aot(index_path: Path) -> dict:
     """{kernel key: {argument keys: function}} of `evstream._aot` as `index_path` describes it, or {} when
     either is missing, they were built from other sources than these, the module file is not the one the
-    index was written for (truncated, damaged, another build's) or the CPU is not the one it was built for
-    (then numba compiles, as without). The module is checked before it is loaded: loading a cut-short or
+    index was written for (truncated, damaged, another build's), or the CPU or Python is not the one it was
+    built for (then numba compiles, as without). The module is checked before it is loaded: loading a cut-short or
     damaged shared object kills the process (SIGBUS, SIGILL), it raises no ImportError."""
     try:
         index = json.loads(index_path.read_text())
@@ -201,6 +202,8 @@ def load_aot(index_path: Path) -> dict:
             return {}
         if source_stamps(index["sources"]) != index["sources"] or index["cpu"] != cpu_id():
             return {}
+        if not index["module"].endswith(importlib.machinery.EXTENSION_SUFFIXES[0]):
+            return {}  # built for another Python (its ABI in the name): loaded by path, it would not be refused
         module_path = index_path.with_name(index["module"])
         if file_digest(module_path) != index["module_sha256"]:
             return {}

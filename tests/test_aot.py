@@ -194,3 +194,15 @@ def test_no_c_compiler_is_one_line_and_leaves_the_module_as_it_was(tmp_path):
     assert "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert out.stderr.startswith("evstream.aot: evstream._aot not built"), out.stderr
     assert {p.name: p.read_bytes() for p in jit.AOT_INDEX.parent.glob("_aot.*")} == before
+
+
+@needs_aot
+def test_a_module_built_for_another_python_is_set_aside(tmp_path):
+    """Another Python sharing the checkout finds the index naming a module of another ABI (its name says
+    which): it is not loaded, though its file is whole."""
+    module, index = _copy_of_the_module(tmp_path)
+    other = module.with_name("_aot.cpython-39-x86_64-linux-gnu.so")
+    module.rename(other)
+    index["module"] = other.name
+    (tmp_path / jit.AOT_INDEX.name).write_text(json.dumps(index))
+    assert jit.load_aot(tmp_path / jit.AOT_INDEX.name) == {}
