@@ -116,6 +116,7 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "to_events: astype(None) is float64, the dtype given; copy=True/None for copy=False changes no value; "
     "np.issubdtype(None, np.floating) holds, and an integer column always equals its floor": [
         f"evstream.sources._base.x_to_events__mutmut_{n}" for n in (20, 38, 40, 41, 58)],
+    "to_events: a bool polarity through (p > 0) gives the same 0/1": ["evstream.sources._base.x_to_events__mutmut_89"],
     "the last-event map as float64: NEVER_US (-2^62) and every time difference below 2^53 µs (285 years) "
     "are exact, so the same comparisons": [
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_4",

@@ -370,7 +370,7 @@ def test_hdf5_mvsec_and_dsec_layouts(tmp_path):
 def test_to_events_normalises_every_column_and_names_a_bad_value_by_event_and_byte(tmp_path):
     """The one conversion every reader's columns go through: t to int64 µs (rounded, any unit), x and y
     to uint16 pixel indices, p to 1 = ON; a value that cannot be one names its event, column and byte."""
-    from evstream.sources._base import FileSource, to_events
+    from evstream.sources._base import FileSource, guess_time_unit, to_events
 
     (tmp_path / "f.csv").write_text("")
     src = FileSource(tmp_path / "f.csv")
@@ -379,7 +379,9 @@ def test_to_events_normalises_every_column_and_names_a_bad_value_by_event_and_by
     assert b.x.dtype == b.y.dtype == np.uint16 and b.p.dtype == np.uint8 and b.p.tolist() == [0, 1]
     assert (b.byte_start, b.byte_end, b.record_bytes) == (0, 0, 0)
     b = to_events(src, [1.4, 2.6], [1.0, 2.0], [0, 0], np.array([True, False]), "us", 10, 30, 8)
-    assert b.t.tolist() == [1, 3] and b.x.tolist() == [1, 2] and b.p.tolist() == [1, 0]
+    assert b.t.tolist() == [1, 3] and b.x.tolist() == [1, 2] and b.p.tolist() == [1, 0] and b.p.dtype == np.uint8
+    assert guess_time_unit(np.array([0.5], np.float32)) == guess_time_unit(np.array([0.5])) == "s"
+    assert guess_time_unit(np.array([5], np.uint32)) == "us"
     assert (b.byte_start, b.byte_end, b.record_bytes) == (10, 30, 8)
     assert to_events(src, np.array([2, 3], np.int64), [0, 0], [0, 0], [0, 0], "ms").t.tolist() == [2000, 3000]
     big = np.array([2**53 + 1, 2**62 + 3], np.int64)  # integer µs stay exact (no trip through float64)
