@@ -69,7 +69,13 @@ def record(folder: Path) -> list[jit.Kernel]:
             code = main([a.format(raw=raw, npz=npz, out=folder) for a in argv])
         if code != 0:
             raise RuntimeError(f"evstream {' '.join(argv)}: exit {code}")
-    return [k for k in jit.KERNELS if k.jit_calls and k.key is not None and set(k.targetoptions) <= OPTIONS]
+    return [k for k in jit.KERNELS if k.jit_calls and exportable(k)]
+
+
+def exportable(kernel: jit.Kernel) -> bool:
+    """Compiled ahead of time: a kernel with a key, numba options among OPTIONS, and `nogil` (the module's
+    wrappers release the GIL: a kernel numba runs holding it may rely on that to serialise its callers)."""
+    return kernel.key is not None and set(kernel.targetoptions) <= OPTIONS and bool(kernel.targetoptions.get("nogil"))
 
 
 def build(out_dir: Path | None = None) -> dict:

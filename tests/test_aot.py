@@ -206,3 +206,14 @@ def test_a_module_built_for_another_python_is_set_aside(tmp_path):
     index["module"] = other.name
     (tmp_path / jit.AOT_INDEX.name).write_text(json.dumps(index))
     assert jit.load_aot(tmp_path / jit.AOT_INDEX.name) == {}
+
+
+def _plain_sum(a):
+    return a.sum()
+
+
+def test_only_nogil_kernels_are_compiled_ahead_of_time():
+    """The module's functions release the GIL: a kernel numba runs holding it stays with numba."""
+    assert aot.exportable(jit.Kernel(_plain_sum, {"cache": True, "nogil": True}))
+    assert not aot.exportable(jit.Kernel(_plain_sum, {"cache": True}))
+    assert not aot.exportable(jit.Kernel(_plain_sum, {"cache": True, "nogil": True, "fastmath": True}))
