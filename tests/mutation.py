@@ -101,10 +101,15 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "STCF top-k: inserting a timestamp equal to the k-th newest, or shifting past equal ones, leaves the "
     "same k newest values": [f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (16, 30)],
     "want_score None for False, or the score computed and dropped: the same classes": [
+        "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_2",
+        "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_5",
+        "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_9",
         "evstream.denoise.refractory.xǁRefractoryFilterǁclassify__mutmut_2",
         "evstream.denoise.refractory.xǁRefractoryFilterǁclassify__mutmut_5",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_9"],
     "np.empty(n, None) and np.empty(n) are float64, the dtype given": [
+        "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_11",
+        "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_13",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_11",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_13",
         "evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁclassify_scored__mutmut_9",
@@ -112,6 +117,7 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.baf.xǁBackgroundActivityFilterǁclassify_scored__mutmut_9",
         "evstream.denoise.baf.xǁBackgroundActivityFilterǁclassify_scored__mutmut_11"],
     "the state set in __post_init__ is replaced by _allocate before its first use": [
+        "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ__post_init____mutmut_42",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ__post_init____mutmut_15"],
     "to_events: astype(None) is float64, the dtype given; copy=True/None for copy=False changes no value; "
     "np.issubdtype(None, np.floating) holds, and an integer column always equals its floor": [
