@@ -13,6 +13,7 @@ import pytest
 from evstream.sources import native, npz_writer, open_source
 from hypothesis import given
 from hypothesis import strategies as st
+from seek_checks import assert_same, read_range
 
 from evstream.events import EventChunk, EventError, Geometry, concat
 from evstream.testing import random_stream
@@ -21,28 +22,6 @@ from evstream.writers import convert
 
 G = Geometry(64, 48)
 SHIPPED = "recordings/turntable.npz"
-
-
-def read_range(path, start_us, end_us=None, **options):
-    """(events of the seeking read, events of a read from the start with the earlier ones dropped, seeks?)"""
-    source = TimeRangeSource(open_source(path, **options), start_us, end_us)
-    got = list(source)
-    everything = concat(list(open_source(path, **options)), source.geometry)
-    keep = everything.t >= start_us
-    if end_us is not None:
-        keep &= everything.t < end_us
-    return concat(got, source.geometry), everything[keep], source.seeks
-
-
-def assert_same(got: EventChunk, want: EventChunk):
-    assert len(got) == len(want)
-    if not len(want):
-        return  # no chunk read at all has no label column to compare
-    for f in ("t", "x", "y", "p", "label"):
-        a, b = getattr(got, f), getattr(want, f)
-        assert (a is None) == (b is None), f
-        if a is not None:
-            np.testing.assert_array_equal(a, b, err_msg=f)
 
 
 def bursty(seed, n) -> EventChunk:

@@ -13,6 +13,7 @@ from evstream.sources import open_source, prophesee_raw
 from evstream.sources._base import EventWarning
 from hypothesis import given
 from hypothesis import strategies as st
+from seek_checks import assert_same, read_range
 
 from evstream.codecs import evt2, evt3
 from evstream.events import EventChunk, EventError, Geometry, concat
@@ -21,26 +22,6 @@ from evstream.testing import random_stream
 from evstream.transforms import TimeRangeSource
 
 G = Geometry(64, 48)
-
-
-def read_range(path, start_us, end_us=None, **options):
-    """(events of the seeking read, events of a read from the start with the earlier ones dropped, seeks?)"""
-    source = TimeRangeSource(open_source(path, **options), start_us, end_us)
-    got = list(source)
-    everything = concat(list(open_source(path, **options)), source.geometry)
-    keep = everything.t >= start_us
-    if end_us is not None:
-        keep &= everything.t < end_us
-    return concat(got, source.geometry), everything[keep], source.seeks
-
-
-def assert_same(got: EventChunk, want: EventChunk):
-    assert len(got) == len(want)
-    for f in ("t", "x", "y", "p", "cls"):
-        a, b = getattr(got, f), getattr(want, f)
-        assert (a is None) == (b is None), f
-        if a is not None:
-            np.testing.assert_array_equal(a, b, err_msg=f)
 
 
 def spread(seed, n, span_us, t0_us=0) -> EventChunk:
