@@ -103,6 +103,24 @@ def test_other_argument_types_go_to_numba():
 
 
 @needs_aot
+def test_a_bound_call_is_the_kernel_call():
+    """`jit.bind` (a stage's state and parameters fixed, keyed once) serves what the kernel itself serves:
+    the module's variant for its argument types, numba's for others, and the same result either way."""
+    t = np.arange(0, 40, dtype=np.int64)
+    x = np.arange(40, dtype=np.uint16) % 7
+    p = np.zeros(40, np.uint8)
+    call = jit.bind(_first_invalid, 2, (x, p, 7))  # t, x | y, p, width | height, last_t
+    before = _first_invalid.jit_calls
+    assert call(t, x, 7, np.int64(-1)) == _first_invalid(t, x, x, p, 7, 7, np.int64(-1)) == (-1, -1)
+    assert _first_invalid.jit_calls == before
+    assert call(t, x, 3, np.int64(-1)) == _first_invalid.py_func(t, x, x, p, 7, 3, np.int64(-1)) != (-1, -1)
+    assert call(t[::2], x[::2], 7, -1) == _first_invalid.py_func(t[::2], x[::2], x, p, 7, 7, -1)  # strided: numba
+    assert _first_invalid.jit_calls == before + 1
+    plain = jit.bind(_first_invalid.py_func, 2, (x, p, 7))  # not a Kernel (NUMBA_DISABLE_JIT=1): the same call
+    assert plain(t, x, 3, -1) == _first_invalid.py_func(t, x, x, p, 7, 3, -1)
+
+
+@needs_aot
 def test_a_changed_source_file_sets_the_module_aside(tmp_path):
     _, index = _copy_of_the_module(tmp_path)
     index_path = tmp_path / jit.AOT_INDEX.name

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..events import EventChunk, NoiseClass
-from ..jit import njit
+from ..jit import bind, njit
 from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
@@ -208,16 +208,18 @@ class DensityFilter(InPlaceClassifier):
         if all_live is None:
             all_live = not np.count_nonzero(codes)
         kernel = density_kernel(*self._options, want_score, all_live, self._far)
+        call = self._calls.get(kernel) or self._calls.setdefault(kernel, bind(kernel, 6, self._args))
         n = len(chunk)
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
         t, x, y, p = chunk.t, chunk.x, chunk.y, chunk.p
         i = 0
         while True:
-            i = kernel(t, x, y, p, i, codes, *self._args, score)
+            i = call(t, x, y, p, i, codes, score)
             if i >= n:
                 return score
             grow_fifo(s, ("fifo_t", "fifo_pos"))
             self._bind()
+            call = self._calls.setdefault(kernel, bind(kernel, 6, self._args))
 
     def _bind(self) -> None:
         """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
@@ -226,6 +228,7 @@ class DensityFilter(InPlaceClassifier):
         self._options = (r, ABSOLUTE if self.mode == "absolute" else RELATIVE, self.match_polarity, self.clip_border)
         self._args = (int(self.noise_class), s["hsum"], g.width + 2 * r, s["fifo_t"], s["fifo_pos"], s["fifo_state"],
                       s["per_pol"], self.window_us, float(self.density_hz), float(self.rho_rel), g.width, g.height)
+        self._calls = {}  # kernel -> its call with these arguments bound (evstream.jit.bind)
 
 
 _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..events import EventChunk, NoiseClass
-from ..jit import njit
+from ..jit import bind, njit
 from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
@@ -233,7 +233,10 @@ class TimeSeriesFilter(InPlaceClassifier):
 
     def _judge(self, kernel, t, x, y, live, codes, score) -> None:
         cursor = np.array([0, -1], np.int64)  # no live event gathered yet
-        while not kernel(t, x, y, live, cursor, codes, *self._args, score):
+        while True:
+            call = self._calls.get(kernel) or self._calls.setdefault(kernel, bind(kernel, 6, self._args))
+            if call(t, x, y, live, cursor, codes, score):
+                return
             grow_fifo(self._state, ("fifo_pos",))
             self._bind()
 
@@ -245,6 +248,7 @@ class TimeSeriesFilter(InPlaceClassifier):
         self._args = (int(self.noise_class), s["pixel"], s["rowsum"], g.width + 2 * r, s["fifo_pos"], s["per_bin"],
                       s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), self._above(), s["span_x"],
                       s["span_y"])
+        self._calls = {}  # kernel -> its call with these arguments bound (evstream.jit.bind)
 
     def _above(self) -> np.ndarray:
         """The difference form's threshold in whole bins for each neighbour count n_nb: hot iff
