@@ -47,6 +47,25 @@ _WRAP_MIN_DROP = 4096 - 16  # a camera wraps 4095 -> 0; a smaller drop is a step
 _MAX_EVENTS_PER_WORD = 12
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _load(state):
+    """The decoder's registers kept in `state` between calls: TIME_HIGH, TIME_LOW, y, vector base x,
+    polarity, clock wraps, whether a TIME_HIGH was seen (`_decode_kernel` and `_follow` share them)."""
+    return state[_HIGH], state[_LOW], state[_Y], state[_BASE_X], state[_POL], state[_LOOPS], state[_HAS_HIGH]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _store(state, high, low, y, base_x, pol, loops, has_high):
+    """The registers back into `state` (`_load`'s inverse)."""
+    state[_HIGH] = high
+    state[_LOW] = low
+    state[_Y] = y
+    state[_BASE_X] = base_x
+    state[_POL] = pol
+    state[_LOOPS] = loops
+    state[_HAS_HIGH] = has_high
+
+
 @njit(cache=True, nogil=True)
 def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     """Decode `words` into the out arrays until the words or the room run out.
@@ -54,13 +73,7 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     Returns (events written, words consumed); stops before a word that might not fit. Word types are
     tested in order of frequency in camera streams.
     """
-    high = state[_HIGH]
-    low = state[_LOW]
-    y = state[_Y]
-    base_x = state[_BASE_X]
-    pol = state[_POL]
-    loops = state[_LOOPS]
-    has_high = state[_HAS_HIGH]
+    high, low, y, base_x, pol, loops, has_high = _load(state)
     last_t = state[_LAST_T]
     cap = len(out_t)
     n = 0
@@ -143,13 +156,7 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
         else:
             _count_other(kind, counters)
         i += 1
-    state[_HIGH] = high
-    state[_LOW] = low
-    state[_Y] = y
-    state[_BASE_X] = base_x
-    state[_POL] = pol
-    state[_LOOPS] = loops
-    state[_HAS_HIGH] = has_high
+    _store(state, high, low, y, base_x, pol, loops, has_high)
     state[_LAST_T] = last_t
     return n, i
 
@@ -337,13 +344,7 @@ def _restore(words, stop, state):
 @njit(cache=True, nogil=True)
 def _follow(words, state, counters, start_us):
     """`_skip_kernel`'s second pass: every word, as `_decode_kernel` (events not written)."""
-    high = state[_HIGH]
-    low = state[_LOW]
-    y = state[_Y]
-    base_x = state[_BASE_X]
-    pol = state[_POL]
-    loops = state[_LOOPS]
-    has_high = state[_HAS_HIGH]
+    high, low, y, base_x, pol, loops, has_high = _load(state)
     i = 0
     nw = len(words)
     while i < nw:
@@ -375,13 +376,7 @@ def _follow(words, state, counters, start_us):
             base_x = payload & 0x7FF
             pol = payload >> 11
         i += 1
-    state[_HIGH] = high
-    state[_LOW] = low
-    state[_Y] = y
-    state[_BASE_X] = base_x
-    state[_POL] = pol
-    state[_LOOPS] = loops
-    state[_HAS_HIGH] = has_high
+    _store(state, high, low, y, base_x, pol, loops, has_high)
     return i
 
 
