@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import njit
+from .words import as_bytes, whole_words
 
 __all__ = ["Evt2Decoder", "Evt2Encoder", "decode", "encode"]
 
@@ -110,18 +111,10 @@ class Evt2Decoder:
 
     def decode(self, data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Decode a block; returns (t int64 µs, x uint16, y uint16, p uint8) in stream order."""
-        if isinstance(data, np.ndarray):
-            raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
-        else:
-            raw = np.frombuffer(memoryview(data), np.uint8)
+        raw = as_bytes(data)
         self.bytes_in += len(raw)
-        if self._pending:
-            raw = np.concatenate((np.frombuffer(self._pending, np.uint8), raw))
-            self._pending = b""
-        cut = len(raw) - len(raw) % 4
-        if cut < len(raw):
-            self._pending = raw[cut:].tobytes()
-        words = raw[:cut].view("<u4")
+        raw, self._pending = whole_words(self._pending, raw, 4)
+        words = raw.view("<u4")
         n = len(words)
         out_t = np.empty(n, np.int64)
         out_x = np.empty(n, np.uint16)
@@ -139,19 +132,15 @@ class Evt2Decoder:
         is earlier than `start_us`: a CD word's time is at most its TIME_HIGH's base + 63); None when the
         whole block lies before (a partial word is kept for the next block). Only wraps are counted in
         the words skipped."""
-        raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1) if isinstance(data, np.ndarray) else (
-            np.frombuffer(memoryview(data), np.uint8))  # no copy
-        if self._pending:
-            raw = np.concatenate((np.frombuffer(self._pending, np.uint8), raw))
-            self._pending = b""
-        cut = len(raw) - len(raw) % 4
-        i = _skip_kernel(raw[:cut].view("<u4"), self.state, self._counters, start_us)
-        if 4 * i == cut:
-            self._pending = raw[cut:].tobytes()
-            self.bytes_in += cut
+        raw, rest = whole_words(self._pending, as_bytes(data), 4)  # no copy when nothing was held back
+        self._pending = b""
+        i = _skip_kernel(raw.view("<u4"), self.state, self._counters, start_us)
+        if 4 * i == len(raw):
+            self._pending = rest
+            self.bytes_in += len(raw)
             return None
         self.bytes_in += 4 * i
-        return raw[4 * i:].tobytes()
+        return raw[4 * i:].tobytes() + rest
 
 
 @njit(cache=True, nogil=True)

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..jit import njit
 from ..nowrap import ix
+from .words import as_bytes, whole_words
 
 __all__ = ["Evt3Decoder", "Evt3Encoder", "decode", "encode"]
 
@@ -174,12 +175,6 @@ def _count_other(kind, counters):
         counters[_UNKNOWN] += 1
 
 
-def _as_bytes_array(data) -> np.ndarray:
-    if isinstance(data, np.ndarray):
-        return np.ascontiguousarray(data).view(np.uint8).reshape(-1)
-    return np.frombuffer(memoryview(data), np.uint8)
-
-
 class Evt3Decoder:
     """Streaming EVT3 decoder: feed byte blocks of any size; partial words and the time base carry over.
 
@@ -215,14 +210,9 @@ class Evt3Decoder:
 
     def decode(self, data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Decode a block; returns (t int64 µs, x uint16, y uint16, p uint8) in stream order."""
-        raw = _as_bytes_array(data)
+        raw = as_bytes(data)
         self.bytes_in += len(raw)
-        if self._pending:
-            raw = np.concatenate((np.frombuffer(self._pending, np.uint8), raw))
-            self._pending = b""
-        if len(raw) % 2:
-            self._pending = raw[-1:].tobytes()
-            raw = raw[:-1]
+        raw, self._pending = whole_words(self._pending, raw, 2)
         words = raw.view("<u2")
         parts = []
         start = 0
@@ -252,18 +242,15 @@ class Evt3Decoder:
         the events decoding from the start would from there (every event before the word takes a time set
         before it, earlier than `start_us`); None when the whole block lies before (an odd byte is kept
         for the next block). Only wraps are counted in the words skipped."""
-        raw = _as_bytes_array(data)  # no copy
-        if self._pending:
-            raw = np.concatenate((np.frombuffer(self._pending, np.uint8), raw))
-            self._pending = b""
-        cut = len(raw) - len(raw) % 2
-        i = _skip_kernel(raw[:cut].view("<u2"), self.state, self._counters, start_us)
-        if 2 * i == cut:
-            self._pending = raw[cut:].tobytes()
-            self.bytes_in += cut
+        raw, rest = whole_words(self._pending, as_bytes(data), 2)  # no copy when nothing was held back
+        self._pending = b""
+        i = _skip_kernel(raw.view("<u2"), self.state, self._counters, start_us)
+        if 2 * i == len(raw):
+            self._pending = rest
+            self.bytes_in += len(raw)
             return None
         self.bytes_in += 2 * i
-        return raw[2 * i:].tobytes()
+        return raw[2 * i:].tobytes() + rest
 
 
 @njit(cache=True, nogil=True)
