@@ -91,17 +91,21 @@ def no_space_error(target) -> OSError:
     return e
 
 
-def _create_part(target: Path) -> Path:
-    """A new, empty file beside `target` that did not exist before (O_EXCL): TARGET.part, TARGET.1.part, ..."""
+def _create_part(target: Path, folder: bool = False) -> Path:
+    """A new, empty file (or `folder`) beside `target` that did not exist before (O_EXCL, mkdir): TARGET.part,
+    TARGET.1.part, ..."""
     for n in range(_MAX_PART_NAMES):
         part = target.with_name(f"{target.name}.part" if n == 0 else f"{target.name}.{n}.part")
         try:
-            fd = os.open(part, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            if folder:
+                part.mkdir()
+            else:
+                os.close(os.open(part, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except FileExistsError:
             continue
-        os.close(fd)
         return part
-    raise OSError(f"{target}: {_MAX_PART_NAMES} temporary files {target.name}.N.part are in the way; remove them")
+    raise OSError(f"{target}: {_MAX_PART_NAMES} temporary {'folders' if folder else 'files'} {target.name}.N.part "
+                  "are in the way; remove them")
 
 
 def partial_name(target, n: int = 0) -> Path:
@@ -236,17 +240,7 @@ class AtomicFolder:
         if self.target.exists() and not self.target.is_dir():
             raise NotADirectoryError(f"{self.target}: is a file, not a folder")
         self.target.parent.mkdir(parents=True, exist_ok=True)
-        for n in range(_MAX_PART_NAMES):
-            part = self.target.with_name(f"{self.target.name}.part" if n == 0 else f"{self.target.name}.{n}.part")
-            try:
-                part.mkdir()
-            except FileExistsError:
-                continue
-            self.part = part
-            break
-        else:
-            raise OSError(f"{self.target}: {_MAX_PART_NAMES} temporary folders {self.target.name}.N.part are in the "
-                          "way; remove them")
+        self.part = _create_part(self.target, folder=True)
         self.done = False
 
     def commit(self) -> Path:
