@@ -497,7 +497,7 @@ class RerunSink:
             self._pending_stats.append(self._stats.flush(self.t_last))
             self._stats = None
         self.send(stats=True)
-        self.rec.flush()
+        self.rec.flush(timeout_sec=0)  # started here; its owner waits for it (`rerun_viewer.wait_flushed`)
 
     def restart(self) -> None:
         """A new stream (its publisher restarted, its clock back to 0) after `close`: same recording, layout

@@ -131,6 +131,58 @@ def _wait_window(proc: subprocess.Popen, log: Path, timeout_s: float) -> None:
         time.sleep(0.05)
 
 
+FLUSH_STEP_S = 1.0  # how long one wait for the SDK's flush lasts (signals are handled between waits)
+FLUSH_STALL_S = 10.0  # an `.rrd` that has not grown for this long while a flush waits: its writer stopped
+
+
+def wait_flushed(rec: rr.RecordingStream, part: Path | None = None) -> None:
+    """Wait until what was logged has reached its destination, in bounded steps.
+
+    rerun-sdk 0.41's `flush()` waits without end by default, and a file writer that stops on a full disk
+    does not always say so ("File-writer thread shut down prematurely"): about half the time the flush
+    just never completes. While `part` (the `.rrd` being written) grows, the wait goes on; once it has
+    not grown for `FLUSH_STALL_S` (or the disk is full), the recording is set aside for good
+    (`_release_never`) and a RuntimeError says the writer stopped."""
+    size, since = -1, time.monotonic()
+    while True:
+        try:
+            rec.flush(timeout_sec=FLUSH_STEP_S)
+            return
+        except RuntimeError as e:
+            if "timed out" not in str(e):
+                raise
+        if part is None:
+            continue  # a viewer still taking data: wait on (Ctrl-C reaches us between the waits)
+        try:
+            now = part.stat().st_size
+        except OSError:  # removed under us
+            now = -1
+        grew, size = now != size, now
+        if grew:
+            since = time.monotonic()
+        if now < 0 or (not grew and (_disk_full(part) or time.monotonic() - since >= FLUSH_STALL_S)):
+            _release_never(rec)
+            raise RuntimeError("the file writer stopped before the recording was whole")
+
+
+def _disk_full(path: Path) -> bool:
+    try:
+        st = os.statvfs(path.parent)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < (4 << 20)
+
+
+def _release_never(rec: rr.RecordingStream) -> None:
+    """rerun-sdk 0.41: a recording whose flush cannot complete blocks forever when it is released (its
+    destructor flushes) and so does the SDK's own flush at exit. Keep it alive for the life of the process
+    (one reference that is never given back) and skip the SDK's exit flush, so that the process ends."""
+    import ctypes
+
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(rec))
+    rr.unregister_shutdown()
+
+
 class _RrdFile:
     """The SDK's `.rrd` file sink, pointed at a file beside the target (`safe_write`) that is renamed onto
     it when whole. A full disk shows as the SDK's "File-writer thread shut down prematurely" (its Rust log
@@ -156,12 +208,7 @@ class _RrdFile:
 
         self.output.discard(keep=False)
         target = self.output.target
-        try:
-            st = os.statvfs(target.parent)
-            full = st.f_bavail * st.f_frsize < (4 << 20)
-        except OSError:
-            full = False
-        if full:
+        if _disk_full(target):
             return no_space_error(target)
         return OSError(f"{target}: cannot write the Rerun recording: {e}")
 
@@ -193,7 +240,7 @@ class RerunOutput:
         the data). `interrupted` (Ctrl-C in `replay --save`): the file, whole up to there, is set aside as
         STEM.partial.rrd instead, an older file at the target left as it was. Returns where the file is."""
         with self.guard():
-            self.rec.flush()
+            wait_flushed(self.rec, self.file.output.part if self.file is not None else None)
             self.rec.disconnect()
         if self.file is None:
             return None

@@ -175,6 +175,19 @@ def test_a_full_disk_is_one_line_naming_the_file_and_nothing_is_left_under_its_n
         assert not list(full_disk.glob("*.part"))
 
 
+def test_a_rerun_recording_on_a_full_disk_ends_every_time(full_disk):
+    """rerun-sdk 0.41's file writer, stopped by a full disk, left `flush()` waiting for ever in about half
+    the runs (and the SDK's destructor and exit flush after it): replay --save hung. Six runs, each ends."""
+    for run_no in range(6):
+        for p in full_disk.iterdir():
+            p.unlink()
+        (full_disk / "filler").write_bytes(bytes(2_000_000 - 500_000))
+        r = subprocess.run([EVSTREAM, "replay", SHIPPED, "--save", str(full_disk / "r.rrd"), "--point-budget", "0"],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 1 and "no space left" in one_line_error(r.stderr), (run_no, r.stderr)
+        assert sorted(p.name for p in full_disk.iterdir()) == ["filler"]
+
+
 def test_a_disk_that_fills_while_an_archive_is_written_keeps_the_older_archive(full_disk, capsys):
     out = full_disk / "a.mcap"
     out.write_bytes(b"older archive")

@@ -149,15 +149,18 @@ class Subscriber:
         self.viewer = None
         self._recs: dict = {}
         self.saved: list[str] = []  # the .rrd files written (with --save)
-        self._outputs: list = []  # their AtomicOutputs, committed by `finish_recordings`
+        self._outputs: dict = {}  # camera: its AtomicOutput, committed by `finish_recordings`
 
     def finish_recordings(self) -> None:
         """End the other cameras' recordings (the first camera's is the viewer's) and put their files in
         place: a live recording ends whole when the subscriber stops, as the first camera's does."""
-        for rec in list(self._recs.values())[1:]:
-            rec.flush()
+        from evstream.sinks.rerun_viewer import wait_flushed
+
+        for camera, rec in list(self._recs.items())[1:]:
+            output = self._outputs.get(camera)
+            wait_flushed(rec, output.part if output is not None else None)
             rec.disconnect()
-        for output in self._outputs:
+        for output in self._outputs.values():
             output.commit()
 
     def viewer_rec(self, camera: str):
@@ -176,7 +179,7 @@ class Subscriber:
                 path = str(Path(self.viewer.path).with_suffix(f".{camera}.rrd"))
                 output = AtomicOutput(path)
                 rec.save(str(output.part))
-                self._outputs.append(output)
+                self._outputs[camera] = output
                 self.saved.append(path)
             else:
                 rec.connect_grpc(self.viewer.grpc_url)
