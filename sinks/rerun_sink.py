@@ -71,6 +71,18 @@ LIVE_OPTIONS = {"live": True, "wall_budget_hz": 100_000.0, "send_every_s": 0.5, 
                 "time_bin_us": 10_000, "classes_apart": False, "series_window_s": 10.0}
 
 
+def _columns(archetype, lengths: np.ndarray, **fields) -> list[rr.ComponentColumn]:
+    """`archetype.columns(**fields).partition(lengths)` without the detour through unit-length rows:
+    `columns` first partitions every component one instance per row (an array of ones, a copy, a cast and
+    a cumulative sum per point: ~30 % of the sink's own time at 10 M points), which `partition` then
+    replaces. Here each component batch (the same descriptors and Arrow data as `columns` builds, by
+    `from_fields`) is partitioned once, by int32 offsets of `lengths` (rows of that many instances)."""
+    offsets = np.zeros(len(lengths) + 1, np.int32)
+    np.cumsum(lengths, out=offsets[1:])
+    return [rr.ComponentColumn(batch.component_descriptor(), batch, offsets=offsets)
+            for batch in archetype.from_fields(**fields).as_component_batches()]
+
+
 def _us(t_us) -> np.ndarray:
     """µs (scalar or array) -> a duration array Rerun stores exactly (ns)."""
     return np.asarray(t_us, np.int64).astype("timedelta64[us]")
@@ -576,7 +588,7 @@ class RerunSink:
         pos[:, 2] = rel * -self.scale
         self.points_logged += len(t)
         # one chunk: every class's points, their ids and the slab's transform
-        points = rr.Points3D.columns(positions=pos, class_ids=cls).partition(np.diff(ends_idx, prepend=-1))
+        points = _columns(rr.Points3D, np.diff(ends_idx, prepend=-1), positions=pos, class_ids=cls)
         self.rec.send_columns(POINTS_ENTITY, indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_t))],
                               columns=[*points, *slab])
 
@@ -597,7 +609,7 @@ class RerunSink:
                 k = int(n_rows[c])
                 self.rec.send_columns(
                     CLASS_ENTITIES[c], indexes=[rr.TimeColumn(TIMELINE, duration=_us(row_us[c, :k]))],
-                    columns=rr.Points3D.columns(positions=pos[start:stop]).partition(row_len[c, :k]),
+                    columns=_columns(rr.Points3D, row_len[c, :k], positions=pos[start:stop]),
                 )
             start = stop
 

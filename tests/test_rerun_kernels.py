@@ -81,3 +81,26 @@ def test_class_counts_per_bin_matches_a_bincount(seed, n, span_digits, bin_us, o
     for kernel in (class_counts_per_bin, class_counts_per_bin.py_func):
         bins, per = kernel(t, cls, t0, bin_us, open_bin, N)
         assert np.array_equal(bins, want[0]) and np.array_equal(per, want[1])
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_rows=st.integers(0, 30), with_ids=st.booleans())
+def test_columns_are_what_points3d_columns_partitioned_builds(seed, n_rows, with_ids):
+    """`_columns` (one partition by offsets) sends the same columns as `rr.Points3D.columns(...).partition`:
+    the same component descriptors, the same Arrow list arrays (rows of the given lengths)."""
+    import rerun as rr
+    from evstream.sinks.rerun_sink import _columns
+
+    rng = np.random.default_rng(seed)
+    lengths = rng.integers(0, 50, n_rows)
+    n = int(lengths.sum())
+    fields = {"positions": rng.random((n, 3), np.float32) * 300}
+    if with_ids:
+        fields["class_ids"] = rng.integers(0, N, n).astype(np.uint8)
+    ours = _columns(rr.Points3D, lengths, **fields)
+    theirs = list(rr.Points3D.columns(**fields).partition(lengths))
+    assert [c.component_descriptor() for c in ours] == [c.component_descriptor() for c in theirs]
+    assert len(ours) == (2 if with_ids else 1)
+    for a, b in zip(ours, theirs):
+        assert a.as_arrow_array().equals(b.as_arrow_array())
+        assert len(a.as_arrow_array()) == n_rows
