@@ -205,18 +205,14 @@ class _EventTopic:
         self.channel_id = channel_id
         self.encoder: PacketEncoder | None = None  # made when the sensor size is known
         self.parts: collections.deque = collections.deque()  # (t, x, y, p) views, in stream order
-        self.n = 0
 
     def add(self, t, x, y, p) -> None:
         if len(t):
             self.parts.append((t, x, y, p))
-            self.n += len(t)
 
-    def first_t(self) -> int | None:
-        return int(self.parts[0][0][0]) if self.n else None
-
-    def take_before(self, t_limit: int) -> tuple[np.ndarray, ...] | None:
-        """Remove and return (t, x, y, p) of the events with t < t_limit, or None (no copy of the rest)."""
+    def take_before(self, t_limit: int) -> list[tuple[np.ndarray, ...]]:
+        """Remove and return the parts (t, x, y, p) of the events with t < t_limit, in stream order (views:
+        no copy; the part holding t_limit is cut there)."""
         taken = []
         while self.parts:
             part = self.parts[0]
@@ -230,12 +226,29 @@ class _EventTopic:
             taken.append(tuple(a[:cut] for a in part))
             self.parts[0] = tuple(a[cut:] for a in part)
             break
-        if not taken:
-            return None
-        self.n -= sum(len(part[0]) for part in taken)
-        if len(taken) == 1:
-            return taken[0]
-        return tuple(np.concatenate([part[k] for part in taken]) for k in range(4))
+        return taken
+
+
+def grid_cells(parts: list[tuple[np.ndarray, ...]], packet_us: int) -> list[tuple[int, tuple[np.ndarray, ...]]]:
+    """The events of `parts` ((t, x, y, p) in stream order) by cell of the packet grid (cell = t // packet_us):
+    (cell, (t, x, y, p)) in order, one entry per cell — views, but for a cell spread over several parts
+    (joined once)."""
+    cells: list[tuple[int, list[tuple[np.ndarray, ...]]]] = []
+    for part in parts:
+        t = part[0]
+        if not len(t):
+            continue
+        cell = t // packet_us
+        bounds = [0, *(np.flatnonzero(cell[1:] != cell[:-1]) + 1).tolist(), len(t)]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            here = int(cell[a])
+            piece = tuple(arr[a:b] for arr in part)
+            if cells and cells[-1][0] == here:  # the cell began in an earlier part
+                cells[-1][1].append(piece)
+            else:
+                cells.append((here, [piece]))
+    return [(here, pieces[0] if len(pieces) == 1 else tuple(np.concatenate(column) for column in zip(*pieces)))
+            for here, pieces in cells]
 
 
 class McapSink:
@@ -381,26 +394,24 @@ class McapSink:
             topic.add(ev.t, ev.x, ev.y, ev.p)
 
     def _emit_cells(self, watermark: int) -> None:
-        """Write the packets of every grid cell that the watermark has closed, cell by cell."""
+        """Write the packets of every grid cell that the watermark has closed: cell by cell, in each cell the
+        topics in order, a cell of a topic in packets of at most `max_packet_events`. (One pass per batch:
+        each topic's closed events are taken at once and cut at the cell edges, then merged by cell.)"""
         cell_end = (watermark // self.packet_us) * self.packet_us  # cells ending at or before this are closed
-        while True:
-            starts = [t for t in (tp.first_t() for tp in self._event_topics.values()) if t is not None]
-            if not starts:
-                return
-            cell = int(min(starts)) // self.packet_us
-            limit = (cell + 1) * self.packet_us
-            if limit > cell_end:
-                return
-            self._write_cell(limit)
-
-    def _write_cell(self, limit: int) -> None:
-        for c, topic in self._event_topics.items():
-            ev = topic.take_before(limit)
-            if ev is None:
+        out = []  # (cell, topic's rank, class, topic, events)
+        for rank, (c, topic) in enumerate(self._event_topics.items()):
+            parts = topic.take_before(cell_end)
+            if parts:
+                out += [(cell, rank, c, topic, ev) for cell, ev in grid_cells(parts, self.packet_us)]
+        if len(self._event_topics) > 1:
+            out.sort(key=lambda row: row[:2])
+        step = self.max_packet_events
+        for _, _, c, topic, ev in out:
+            if len(ev[0]) <= step:
+                self._write_packet(c, topic, *ev)
                 continue
-            for a in range(0, len(ev[0]), self.max_packet_events):
-                part = tuple(arr[a : a + self.max_packet_events] for arr in ev)
-                self._write_packet(c, topic, *part)
+            for a in range(0, len(ev[0]), step):
+                self._write_packet(c, topic, *(arr[a : a + step] for arr in ev))
 
     def _write_packet(self, c: NoiseClass, topic: _EventTopic, t, x, y, p) -> None:
         if topic.encoder is None:

@@ -380,3 +380,21 @@ def test_tick_closes_the_chunk_when_the_stream_goes_quiet(tmp_path):
     assert not path.exists()
     sink.close(stats)
     assert path.exists() and not part.exists()
+
+
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 500), packet_us=st.sampled_from([1, 3, 50, 1000]))
+def test_grid_cells_are_the_events_of_each_cell_in_order(seed, n, packet_us):
+    """The sink's cutting of waiting parts into grid cells: per cell (ascending) its events in stream order,
+    whatever the parts (cells spread over many parts, parts of one event)."""
+    from evstream.sinks.mcap_sink import grid_cells
+
+    s = random_stream(seed, n, G, t0_us=int(np.random.default_rng(seed).integers(-10**6, 10**6)))
+    parts = [(c.t, c.x, c.y, c.p) for c in split(s, random_bounds(seed, n))]
+    got = grid_cells(parts, packet_us)
+    cells = s.t // packet_us
+    want = sorted(set(cells.tolist()))
+    assert [cell for cell, _ in got] == want
+    for cell, ev in got:
+        sel = cells == cell
+        for arr, full in zip(ev, (s.t, s.x, s.y, s.p)):
+            np.testing.assert_array_equal(arr, full[sel])
