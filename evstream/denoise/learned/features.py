@@ -88,6 +88,16 @@ def block_log_scale(width: int, height: int) -> np.ndarray:
     return np.log(25.0 / np.outer(rows, cols).astype(np.float64)).reshape(-1)
 
 
+def _placed(like: np.ndarray, offset_bytes: int) -> np.ndarray:
+    """A zeroed copy of `like` starting `offset_bytes` past a 4 KiB boundary. Why: large arrays come
+    page-aligned from the allocator, so the maps' cells of one pixel would share their address bits
+    0-11, and a load after a store to another map at the same bits waits for it (4K aliasing, in the
+    CPU's store-to-load forwarding): placed 1 KiB apart, the kernel measured ~1 ns/event (3 %) faster."""
+    buf = np.zeros(like.nbytes + 4096 + offset_bytes, np.uint8)
+    start = (-buf.ctypes.data) % 4096 + offset_bytes
+    return buf[start : start + like.nbytes].view(like.dtype)
+
+
 def new_state(width: int, height: int) -> dict:
     """Fresh state for a width × height sensor."""
     r = RADIUS_PX
@@ -95,16 +105,17 @@ def new_state(width: int, height: int) -> dict:
     cap = 1 << 12
     return {
         "width_padded": wp,
-        "word": np.zeros((height + 2 * r) * wp, np.int64),
+        "word": _placed(np.empty((height + 2 * r) * wp, np.int64), 0),
         # one row-summed map, each cell packing (all events) | (ON events) << 16: one read per row gives
         # both N and N_ON (counts per 20 ms in a 5×5 box stay far below 65536)
-        "hsum": padded_map(width, height, r, np.uint32),
+        "hsum": _placed(padded_map(width, height, r, np.uint32), 2048),
         "block": np.zeros(-(-width // BLOCK_PX) * -(-height // BLOCK_PX), np.int32),
         "block_log_scale": block_log_scale(width, height),
-        "fifo_t": np.zeros(cap, np.int64),   # the 20 ms window's events: time ...
-        "fifo_pos": np.zeros(cap, np.int64),  # ... and count-map row | polarity << 32 | block << 33
+        "fifo_t": _placed(np.empty(cap, np.int64), 3072),   # the 20 ms window's events: time ...
+        "fifo_pos": _placed(np.empty(cap, np.int64), 3584),  # ... and count-map row | polarity << 32 | block << 33
         "fifo_state": np.zeros(2, np.int64),  # head, size
-        "bins": np.zeros((height + 2 * r) * wp, np.int64),  # per pixel: its active DC bins, a bitmap
+        # per pixel: its active DC bins, a bitmap
+        "bins": _placed(np.empty((height + 2 * r) * wp, np.int64), 1024),
         "clock": np.array([0, 0, 0], np.int64),  # tick base, current DC bin, 1 once started
     }
 
