@@ -21,14 +21,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import njit
-from .words import as_bytes, whole_words
+from .words import COUNTER_NAMES, WordDecoder
 
 __all__ = ["Evt2Decoder", "Evt2Encoder", "decode", "encode"]
 
 _HIGH, _LOOPS, _HAS_HIGH, _LAST_T = range(4)
 _N_STATE = 4
-_UNKNOWN, _TRIGGER, _OTHERS, _CONTINUED, _TIME_BACK, _NO_TIME, _WRAPS = range(7)
-COUNTER_NAMES = ("unknown", "trigger", "others", "continued", "time_back", "no_time", "wraps")
+_UNKNOWN, _TRIGGER, _OTHERS, _CONTINUED, _TIME_BACK, _NO_TIME, _WRAPS = range(len(COUNTER_NAMES))
 _HIGH_RANGE = 1 << 28
 _WRAP_MIN_DROP = 1 << 27
 
@@ -81,27 +80,14 @@ def _decode_kernel(words, state, counters, out_t, out_x, out_y, out_p):
     return n
 
 
-class Evt2Decoder:
+class Evt2Decoder(WordDecoder):
     """Streaming EVT2 decoder: feed byte blocks of any size; partial words and the time base carry over.
 
     `counters` (dict) counts skipped words (unknown, trigger, others, continued), events before the
     first TIME_HIGH (no_time), timestamps stepping back (time_back) and clock wraps (wraps).
     """
 
-    def __init__(self):
-        self.state = np.zeros(_N_STATE, np.int64)
-        self.state[_LAST_T] = np.iinfo(np.int64).min
-        self._counters = np.zeros(len(COUNTER_NAMES), np.int64)
-        self._pending = b""
-        self.bytes_in = 0
-
-    @property
-    def counters(self) -> dict:
-        return {name: int(v) for name, v in zip(COUNTER_NAMES, self._counters)}
-
-    @property
-    def pending_bytes(self) -> int:
-        return len(self._pending)
+    word, n_state, last_t_slot = "<u4", _N_STATE, _LAST_T
 
     @property
     def time_us(self) -> int:
@@ -111,10 +97,7 @@ class Evt2Decoder:
 
     def decode(self, data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Decode a block; returns (t int64 µs, x uint16, y uint16, p uint8) in stream order."""
-        raw = as_bytes(data)
-        self.bytes_in += len(raw)
-        raw, self._pending = whole_words(self._pending, raw, 4)
-        words = raw.view("<u4")
+        words = self._words(data)
         n = len(words)
         out_t = np.empty(n, np.int64)
         out_x = np.empty(n, np.uint16)
@@ -123,24 +106,10 @@ class Evt2Decoder:
         k = _decode_kernel(words, self.state, self._counters, out_t, out_x, out_y, out_p)
         return out_t[:k], out_x[:k], out_y[:k], out_p[:k]
 
-
-    def skip_before(self, data, start_us: int) -> bytes | None:
-        """Skip ahead to `start_us` without decoding events: follow the time base (TIME_HIGH words and
-        their wraps) through the block up to the first TIME_HIGH whose events may be at or after
-        `start_us` (base + 63 >= start_us). Returns the bytes from that word on, for `decode`, which then
-        gives exactly the events decoding from the start would from there (every event before the word
-        is earlier than `start_us`: a CD word's time is at most its TIME_HIGH's base + 63); None when the
-        whole block lies before (a partial word is kept for the next block). Only wraps are counted in
-        the words skipped."""
-        raw, rest = whole_words(self._pending, as_bytes(data), 4)  # no copy when nothing was held back
-        self._pending = b""
-        i = _skip_kernel(raw.view("<u4"), self.state, self._counters, start_us)
-        if 4 * i == len(raw):
-            self._pending = rest
-            self.bytes_in += len(raw)
-            return None
-        self.bytes_in += 4 * i
-        return raw[4 * i:].tobytes() + rest
+    def _skip(self, words, start_us: int) -> int:
+        """Up to the first TIME_HIGH whose events may be at or after `start_us` (base + 63 >= start_us):
+        every event before it is earlier (a CD word's time is at most its TIME_HIGH's base + 63)."""
+        return _skip_kernel(words, self.state, self._counters, start_us)
 
 
 @njit(cache=True, nogil=True)

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..jit import njit
 from ..nowrap import ix
-from .words import as_bytes, whole_words
+from .words import COUNTER_NAMES, WordDecoder
 
 __all__ = ["Evt3Decoder", "Evt3Encoder", "decode", "encode"]
 
@@ -38,9 +38,7 @@ __all__ = ["Evt3Decoder", "Evt3Encoder", "decode", "encode"]
 _HIGH, _LOW, _Y, _BASE_X, _POL, _LOOPS, _HAS_HIGH, _LAST_T = range(8)
 _N_STATE = 8
 # counter slots
-_UNKNOWN, _TRIGGER, _OTHERS, _CONTINUED, _TIME_BACK, _NO_TIME, _WRAPS = range(7)
-_N_COUNTERS = 7
-COUNTER_NAMES = ("unknown", "trigger", "others", "continued", "time_back", "no_time", "wraps")
+_UNKNOWN, _TRIGGER, _OTHERS, _CONTINUED, _TIME_BACK, _NO_TIME, _WRAPS = range(len(COUNTER_NAMES))
 
 _WRAP_US = 1 << 24
 _HIGH_HALF_RANGE = 2048
@@ -175,28 +173,14 @@ def _count_other(kind, counters):
         counters[_UNKNOWN] += 1
 
 
-class Evt3Decoder:
+class Evt3Decoder(WordDecoder):
     """Streaming EVT3 decoder: feed byte blocks of any size; partial words and the time base carry over.
 
     `counters` (dict) counts skipped words (unknown, trigger, others, continued), events before the
     first TIME_HIGH (no_time), timestamps stepping back (time_back) and 24-bit clock wraps (wraps).
     """
 
-    def __init__(self):
-        self.state = np.zeros(_N_STATE, np.int64)
-        self.state[_LAST_T] = np.iinfo(np.int64).min
-        self._counters = np.zeros(_N_COUNTERS, np.int64)
-        self._pending = b""  # an odd trailing byte
-        self.bytes_in = 0
-
-    @property
-    def counters(self) -> dict:
-        return {name: int(v) for name, v in zip(COUNTER_NAMES, self._counters)}
-
-    @property
-    def pending_bytes(self) -> int:
-        """Bytes held back (half a word) waiting for the next block."""
-        return len(self._pending)
+    word, n_state, last_t_slot = "<u2", _N_STATE, _LAST_T
 
     @property
     def has_time(self) -> bool:
@@ -210,10 +194,7 @@ class Evt3Decoder:
 
     def decode(self, data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Decode a block; returns (t int64 µs, x uint16, y uint16, p uint8) in stream order."""
-        raw = as_bytes(data)
-        self.bytes_in += len(raw)
-        raw, self._pending = whole_words(self._pending, raw, 2)
-        words = raw.view("<u2")
+        words = self._words(data)
         parts = []
         start = 0
         while start < len(words):
@@ -235,22 +216,10 @@ class Evt3Decoder:
         return tuple(np.concatenate([p[k] for p in parts]) for k in range(4))
 
 
-    def skip_before(self, data, start_us: int) -> bytes | None:
-        """Skip ahead to `start_us` without decoding events: follow the decoder's state (time, wraps, y,
-        vector base) through the block up to the first TIME_HIGH or TIME_LOW word that sets the time to
-        `start_us` or later. Returns the bytes from that word on, for `decode`, which then gives exactly
-        the events decoding from the start would from there (every event before the word takes a time set
-        before it, earlier than `start_us`); None when the whole block lies before (an odd byte is kept
-        for the next block). Only wraps are counted in the words skipped."""
-        raw, rest = whole_words(self._pending, as_bytes(data), 2)  # no copy when nothing was held back
-        self._pending = b""
-        i = _skip_kernel(raw.view("<u2"), self.state, self._counters, start_us)
-        if 2 * i == len(raw):
-            self._pending = rest
-            self.bytes_in += len(raw)
-            return None
-        self.bytes_in += 2 * i
-        return raw[2 * i:].tobytes() + rest
+    def _skip(self, words, start_us: int) -> int:
+        """Up to the first TIME_HIGH or TIME_LOW word that sets the time to `start_us` or later: every
+        event before it takes a time set before it, earlier than `start_us`."""
+        return _skip_kernel(words, self.state, self._counters, start_us)
 
 
 @njit(cache=True, nogil=True)
