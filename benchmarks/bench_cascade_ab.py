@@ -6,7 +6,9 @@ in one process move much less. The earlier revision's `evstream` package is expo
 into a temporary folder under another name (its numba kernels compile there on first use), its
 classes are checked to be identical to this tree's, and each case keeps its best CPU time.
 
-    EVSTREAM_AB_REV=c0ec3b5 python -m benchmarks cascade_ab   # default revision: c0ec3b5 (session 7 start)
+    EVSTREAM_AB_REV=ee5e3fe python -m benchmarks cascade_ab   # default revision: ee5e3fe (session 8 start)
+
+Last, the CPU time of one call on a 1-event chunk (the cost of a call beyond its events) of both.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from evstream.events import Geometry
 from .bench_paper import dv_store, pieces
 from .common import ROOT, noisy_scene
 
-REV = os.environ.get("EVSTREAM_AB_REV", "c0ec3b5")
+REV = os.environ.get("EVSTREAM_AB_REV", "ee5e3fe")
 ROUNDS = int(os.environ.get("EVSTREAM_BENCH_ROUNDS", "5"))
 
 
@@ -60,6 +62,29 @@ def run() -> None:
         old_events = importlib.import_module("evstream_at_rev.events")
         for name, g, duration in [("turntable", Geometry(346, 260), 1_000_000), ("bar", Geometry(1280, 720), 300_000)]:
             compare(name, g, duration, old_cascade, old_events)
+        per_call(old_cascade, old_events)
+
+
+def per_call(old_cascade, old_events, calls: int = 10_000) -> None:
+    """CPU µs of one cascade call on a 1-event chunk, warm, both revisions interleaved."""
+    g = Geometry(346, 260)
+    warm = noisy_scene("turntable", g, 20_000)
+    warm_old = old_events.EventChunk.from_arrays(warm.t, warm.x, warm.y, warm.p, old_events.Geometry(346, 260))
+    cases = {}
+    for tag, make, w in ((f"cascade at {REV}", old_cascade, warm_old), ("cascade, this tree", PaperCascade, warm)):
+        f = make()
+        f(w)
+        cases[tag] = (f, w[len(w) - 1 :])
+    best = dict.fromkeys(cases, float("inf"))
+    for _ in range(max(3, ROUNDS)):
+        for k, (f, one) in cases.items():
+            t0 = time.process_time()
+            for _ in range(calls):
+                f(one)
+            best[k] = min(best[k], (time.process_time() - t0) / calls)
+    print(f"-- per call, 1-event chunks, 346x260 (CPU, best of {max(3, ROUNDS)} interleaved rounds)")
+    for k, sec in best.items():
+        print(f"{k:<40} {sec * 1e6:7.2f} µs per call", flush=True)
 
 
 def compare(name: str, g: Geometry, duration: int, old_cascade, old_events) -> None:

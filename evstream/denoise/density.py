@@ -39,6 +39,8 @@ ABSOLUTE, RELATIVE = 0, 1
 # How far ahead a kernel over a map larger than the L2 cache prefetches (measured at 1280×720: 4 events
 # and 8 FIFO entries ahead were best among 4/8/16 and 8/16/32).
 PREFETCH_EVENTS, PREFETCH_FIFO = 4, 8
+# The FIFO expires its entries G at a time (see the kernel).
+EXPIRE_GROUP = 16
 
 
 @functools.cache
@@ -47,22 +49,32 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
     per-event loop carries no option branches and L-cell loops unroll (+13 % over runtime flags).
     `all_live`: no event is rejected yet (the usual first stage), so none is tested (+7–13 %).
     `far`: the map is larger than the L2 cache (`FAR_BYTES`), so each event prefetches the box of the
-    event PREFETCH_EVENTS ahead and the row of the FIFO entry PREFETCH_FIFO behind the head."""
+    event PREFETCH_EVENTS ahead and the row of the FIFO entry PREFETCH_FIFO behind the head, and the
+    FIFO expires one entry at a time (there the group expiry below measured slower: the misses, not
+    the mispredictions, take the time)."""
     L = 2 * radius + 1
+    G = EXPIRE_GROUP
 
     @njit(cache=True, nogil=True)
-    def kernel(t, x, y, p, start, codes, noise_code, hsum, padded_width, fifo_t, fifo_pos, fifo_state,
-               per_pol, window_us, density_hz, rho_rel, width, height, out_score):
+    def kernel(t, x, y, p, start, codes, noise_code, hsum, padded_width, fifo_t, fifo_pos, fifo_x, fifo_y,
+               fifo_state, per_pol, window_us, density_hz, rho_rel, width, height, out_score):
         """Classify events `start..` whose code is SIGNAL (others are skipped: an earlier stage rejected
         them), writing `noise_code` into `codes` for those in sparse neighbourhoods and, if `want_score`,
         the score into `out_score`. Returns the index reached: len(t) unless the FIFO is full (the
         caller grows it and calls again from there).
 
-        `hsum` is a row-summed count map (`rowsum`) of the window's events: one plane, or one per
-        polarity with `match_polarity`. `fifo_pos` holds where each window event was added;
-        `fifo_state` = [head, size]; `per_pol` counts the window's events per plane (g per polarity).
+        `hsum` is a row-summed count map (`rowsum`) of the FIFO's events: one plane, or one per
+        polarity with `match_polarity`. The FIFO holds each event's time, map position (`fifo_pos`) and
+        column and row (`fifo_x`; `fifo_y` plus the plane times `height + 2r + 1` with `match_polarity`);
+        `fifo_state` = [head, size]; `per_pol` counts the FIFO's events per plane.
+
+        Expiry by groups of G (not `far`): the head advances G entries at a time, once the G-th is
+        out of the window (the times are non-decreasing), so the FIFO also holds up to G - 1 events
+        already out of it. Each event subtracts those from its count and from g by a fixed G-entry
+        test without a branch (vectorised): an expiry loop per event mispredicted its exit on about
+        every event (4–5 ns of 12 at 346×260).
         """
-        cap = len(fifo_t)
+        cap = len(fifo_t)  # a multiple of G, and head one too: a group never wraps
         mask = cap - 1
         head = fifo_state[0]
         size = fifo_state[1]
@@ -70,6 +82,8 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
         per_area_abs = density_hz * window_s  # absolute: keep iff N >= D_th · area · Δt
         per_area_rel = rho_rel / (width * height)  # relative: keep iff N >= max(1, ρ_rel · area · g / (W·H))
         plane = (height + 2 * radius) * padded_width
+        y_plane = height + 2 * radius + 1  # fifo_y's offset per plane: rows of two planes are > r apart
+        box = np.uint32(2 * radius)
         i = start
         n = len(t)
         while i < n:
@@ -89,30 +103,43 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                     for k in range(L):
                         prefetch(hsum, top + k * padded_width)
                     prefetch(hsum, np.intp(fifo_pos[ix((head + PREFETCH_FIFO) & mask)]))
-                else:  # one expiry step without a branch: the loop below then usually exits at its first test
-                    e = np.intp((size > 0) & (fifo_t[ix(head)] <= oldest))
-                    pos = fifo_pos[ix(head)]
-                    row_add(hsum, pos, -e, L)
-                    if match_polarity:
-                        per_pol[np.intp(pos >= plane)] -= e
-                    head = (head + e) & mask
-                    size -= e
-                while size > 0 and fifo_t[ix(head)] <= oldest:
-                    pos = fifo_pos[ix(head)]
-                    row_add(hsum, pos, -1, L)
-                    if match_polarity:
-                        per_pol[1 if pos >= plane else 0] -= 1
-                    head = (head + 1) & mask
-                    size -= 1
+                    while size > 0 and fifo_t[ix(head)] <= oldest:  # one by one (groups measured slower here)
+                        pos = fifo_pos[ix(head)]
+                        row_add(hsum, pos, -1, L)
+                        if match_polarity:
+                            per_pol[1 if pos >= plane else 0] -= 1
+                        head = (head + 1) & mask
+                        size -= 1
+                while not far and size >= G and fifo_t[ix(head + G - 1)] <= oldest:  # the head group is out
+                    for k in range(G):
+                        pos = fifo_pos[ix(head + k)]
+                        row_add(hsum, pos, -1, L)
+                        if match_polarity:
+                            per_pol[np.intp(fifo_y[ix(head + k)] >= y_plane)] -= 1
+                    head = (head + G) & mask
+                    size -= G
                 xi = np.intp(x[ix(i)])
                 yi = np.intp(y[ix(i)])
                 pl = np.intp(p[ix(i)]) if match_polarity else 0
+                yq = yi + pl * y_plane
+                x0 = xi - radius  # in the box: 0 <= fifo_x - x0 <= 2r (as uint32: one compare, 32-bit lanes)
+                y0 = yq - radius
+                out = 0  # events of the head group already out of the window: in the box, on this plane
+                near = 0
+                same = 0
+                for k in range(0 if far else G):
+                    q = ix(head + k)
+                    d = (k < size) & (fifo_t[q] <= oldest)
+                    out += d
+                    near += d & (np.uint32(fifo_x[q] - x0) <= box) & (np.uint32(fifo_y[q] - y0) <= box)
+                    if match_polarity:
+                        same += d & ((fifo_y[q] >= y_plane) == (pl == 1))
                 corner = pl * plane + yi * padded_width + xi  # padded (row y, column x): the box's top-left
-                total = column_sum(hsum, corner + radius, padded_width, L)
+                total = column_sum(hsum, corner + radius, padded_width, L) - near
                 area = L * L
                 if clip_border:
                     area = box_area(xi, yi, radius, width, height)
-                g = per_pol[pl] * 2 if match_polarity else size
+                g = (per_pol[pl] - same) * 2 if match_polarity else size - out
                 if mode == ABSOLUTE:
                     threshold = per_area_abs * area - 1e-9  # compare counts: no rounding flips
                 else:
@@ -126,9 +153,12 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                         out_score[ix(i)] = total / mean_count if mean_count > 0 else (np.inf if total > 0 else 0.0)
                 pos = corner + radius * padded_width
                 row_add(hsum, pos, 1, L)
-                slot = (head + size) & mask
-                fifo_t[ix(slot)] = ti
-                fifo_pos[ix(slot)] = pos
+                slot = ix((head + size) & mask)
+                fifo_t[slot] = ti
+                fifo_pos[slot] = pos
+                if not far:
+                    fifo_x[slot] = xi
+                    fifo_y[slot] = yq
                 if match_polarity:
                     per_pol[pl] += 1
                 size += 1
@@ -187,11 +217,16 @@ class DensityFilter(InPlaceClassifier):
         r = self.radius_px
         cap = 1 << 12
         hsum = padded_map(g.width, g.height, r, np.int32, planes=2 if self.match_polarity else 1)
+        far = hsum.nbytes > FAR_BYTES
+        group = 0 if far else cap  # the group expiry's columns and rows (not `far`)
         return {
             "geometry": g,
+            "far": far,
             "hsum": hsum,
             "fifo_t": np.zeros(cap, np.int64),
             "fifo_pos": np.zeros(cap, np.int32 if len(hsum) < 2**31 else np.int64),  # map positions
+            "fifo_x": np.zeros(group, np.int32),
+            "fifo_y": np.zeros(group, np.int32),  # the row, plus height + 2r + 1 on the ON plane (match_polarity)
             "fifo_state": np.zeros(2, np.int64),
             "per_pol": np.zeros(2, np.int64),
         }
@@ -207,8 +242,8 @@ class DensityFilter(InPlaceClassifier):
             self._bind()
         if all_live is None:
             all_live = not np.count_nonzero(codes)
-        kernel = density_kernel(*self._options, want_score, all_live, self._far)
-        call = self._calls.get(kernel) or self._calls.setdefault(kernel, bind(kernel, 6, self._args))
+        variant = (want_score, all_live)
+        call = self._calls.get(variant) or self._calls.setdefault(variant, self._bound(variant))
         n = len(chunk)
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
         t, x, y, p = chunk.t, chunk.x, chunk.y, chunk.p
@@ -217,18 +252,23 @@ class DensityFilter(InPlaceClassifier):
             i = call(t, x, y, p, i, codes, score)
             if i >= n:
                 return score
-            grow_fifo(s, ("fifo_t", "fifo_pos"))
+            grow_fifo(s, ("fifo_t", "fifo_pos") + (() if self._far else ("fifo_x", "fifo_y")))
             self._bind()
-            call = self._calls.setdefault(kernel, bind(kernel, 6, self._args))
+            call = self._calls.setdefault(variant, self._bound(variant))
 
     def _bind(self) -> None:
         """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
         s, g, r = self._state, self._state["geometry"], self.radius_px
-        self._far = s["hsum"].nbytes > FAR_BYTES
+        self._far = s["far"]
         self._options = (r, ABSOLUTE if self.mode == "absolute" else RELATIVE, self.match_polarity, self.clip_border)
-        self._args = (int(self.noise_class), s["hsum"], g.width + 2 * r, s["fifo_t"], s["fifo_pos"], s["fifo_state"],
-                      s["per_pol"], self.window_us, float(self.density_hz), float(self.rho_rel), g.width, g.height)
-        self._calls = {}  # kernel -> its call with these arguments bound (evstream.jit.bind)
+        self._args = (int(self.noise_class), s["hsum"], g.width + 2 * r, s["fifo_t"], s["fifo_pos"], s["fifo_x"],
+                      s["fifo_y"], s["fifo_state"], s["per_pol"], self.window_us, float(self.density_hz),
+                      float(self.rho_rel), g.width, g.height)
+        self._calls = {}  # (want_score, all_live) -> the kernel's call with these arguments bound
+
+    def _bound(self, variant: tuple) -> object:
+        """The kernel for `variant` = (want_score, all_live) with this state bound (evstream.jit.bind)."""
+        return bind(density_kernel(*self._options, *variant, self._far), 6, self._args)
 
 
 _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it

@@ -50,20 +50,21 @@ def dc_kernel(options, want_score):
     L = 2 * radius + 1
 
     @njit(cache=True, nogil=True)
-    def kernel(t, x, y, live, cursor, codes, noise_code, pixel, rowsum, padded_width, fifo_pos, per_bin,
+    def kernel(t, x, y, resume, codes, noise_code, live, pixel, rowsum, padded_width, fifo_pos, per_bin,
                fifo_state, bin_us, n_bins, lam, above, span_x, span_y, out_score):
         """For each event still SIGNAL in `codes`: mark its pixel active in the event's bin, compare the
         pixel's active bins with its neighbours' mean, write `noise_code` when hot (and the score if
         `want_score`). The events still SIGNAL are gathered once into `live` (length >= len(t)), then
-        judged from `cursor` = [next live index, live count (-1: not gathered yet)]; returns True when
-        all are done, False when the FIFO is full (the caller grows it and calls again: no re-gather).
+        judged from the next live index and the live count, `fifo_state[3:5]`; returns True when all
+        are done, False when the FIFO is full (the caller grows it and calls again with `resume`: no
+        re-gather). `live` is state too (no allocation per call): the caller keeps it >= len(t).
 
         State, indexed like the padded `rowsum` map: `pixel`, a uint16 per pixel holding its count of
         active bins among the last n (low byte) and its last active bin modulo 256 (high byte); `rowsum`
         (row sums of the counts over L columns, `rowsum` module); a FIFO of activations (`fifo_pos`,
         the cell's row position) with `per_bin[k % n]` activations in bin k, expired when the bin
         leaves the window;
-        `fifo_state` = [head, size, current bin].
+        `fifo_state` = [head, size, current bin, next live index, live count].
         """
         cap = len(fifo_pos)
         mask = cap - 1
@@ -74,14 +75,16 @@ def dc_kernel(options, want_score):
         bin_end = bin_start + bin_us
         b_slot = b % n_bins  # per_bin[b_slot] counts bin b's activations
         in_bin = per_bin[ix(b_slot)]
-        k = cursor[1]
-        if k < 0:  # the events still SIGNAL, gathered without a branch: skipping the others in the
-            k = 0  # loop below mispredicts on every other event
+        if resume:
+            j = fifo_state[3]
+            k = fifo_state[4]
+        else:  # the events still SIGNAL, gathered without a branch: skipping the others in the loop
+            j = 0  # below mispredicts on every other event
+            k = 0
             for i in range(len(t)):
                 live[ix(k)] = i
                 k += codes[ix(i)] == 0
-            cursor[1] = k
-        j = cursor[0]
+            fifo_state[4] = k
         while j < k:
             stop = min(k, j + cap - size)  # each event pushes at most one activation
             if stop == j:
@@ -153,7 +156,7 @@ def dc_kernel(options, want_score):
         fifo_state[0] = head
         fifo_state[1] = size
         fifo_state[2] = b
-        cursor[0] = j
+        fifo_state[3] = j
         return j >= k
 
     return kernel
@@ -207,7 +210,8 @@ class TimeSeriesFilter(InPlaceClassifier):
         cap = 1 << 12
         return {"geometry": g, "pixel": padded_map(g.width, g.height, r, np.uint16),
                 "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
-                "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(3, np.int64),
+                "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(5, np.int64),
+                "live": np.zeros(0, np.int64),
                 "span_x": _span(g.width, r), "span_y": _span(g.height, r)}
 
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
@@ -220,35 +224,38 @@ class TimeSeriesFilter(InPlaceClassifier):
             self._bind()
         n = len(chunk)
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
-        kernel = dc_kernel(self._options, want_score)
-        live = np.empty(min(n, BLOCK_EVENTS), np.int64)
+        if len(s["live"]) < n and len(s["live"]) < BLOCK_EVENTS:  # kept: a call allocates nothing
+            s["live"] = np.zeros(min(max(n, 2 * len(s["live"])), BLOCK_EVENTS), np.int64)
+            self._bind()
         t, x, y = chunk.t, chunk.x, chunk.y
         if n <= BLOCK_EVENTS:
-            self._judge(kernel, t, x, y, live, codes, score)
+            self._judge(want_score, t, x, y, codes, score)
         else:  # the stage is chunk-invariant: blocks keep `live` in cache, with the same classes
             for a in range(0, n, BLOCK_EVENTS):
                 b = a + BLOCK_EVENTS
-                self._judge(kernel, t[a:b], x[a:b], y[a:b], live, codes[a:b], score[a:b] if want_score else score)
+                self._judge(want_score, t[a:b], x[a:b], y[a:b], codes[a:b], score[a:b] if want_score else score)
         return score
 
-    def _judge(self, kernel, t, x, y, live, codes, score) -> None:
-        cursor = np.array([0, -1], np.int64)  # no live event gathered yet
+    def _judge(self, want_score, t, x, y, codes, score) -> None:
+        resume = False
         while True:
-            call = self._calls.get(kernel) or self._calls.setdefault(kernel, bind(kernel, 6, self._args))
-            if call(t, x, y, live, cursor, codes, score):
+            call = self._calls.get(want_score) or self._calls.setdefault(
+                want_score, bind(dc_kernel(self._options, want_score), 5, self._args))
+            if call(t, x, y, resume, codes, score):
                 return
             grow_fifo(self._state, ("fifo_pos",))
             self._bind()
+            resume = True
 
     def _bind(self) -> None:
         """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
         s, g, r = self._state, self._state["geometry"], self.radius_px
         far = s["pixel"].nbytes + s["rowsum"].nbytes > FAR_BYTES
         self._options = (r, DIFFERENCE if self.form == "difference" else RATIO, far)
-        self._args = (int(self.noise_class), s["pixel"], s["rowsum"], g.width + 2 * r, s["fifo_pos"], s["per_bin"],
-                      s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), self._above(), s["span_x"],
-                      s["span_y"])
-        self._calls = {}  # kernel -> its call with these arguments bound (evstream.jit.bind)
+        self._args = (int(self.noise_class), s["live"], s["pixel"], s["rowsum"], g.width + 2 * r, s["fifo_pos"],
+                      s["per_bin"], s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), self._above(),
+                      s["span_x"], s["span_y"])
+        self._calls = {}  # want_score -> the kernel's call with these arguments bound (evstream.jit.bind)
 
     def _above(self) -> np.ndarray:
         """The difference form's threshold in whole bins for each neighbour count n_nb: hot iff
