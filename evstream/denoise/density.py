@@ -14,7 +14,8 @@ hot pixel survives this stage and is left to the fine one). The density is ρ(m)
   to the noise environment as the paper asks, with no per-recording tuning.
 
 Exact, not approximate: a row-summed count map of the events inside the window (`rowsum`) plus a FIFO
-of them in arrival order; each event expires the FIFO's head, sums L cells and pushes itself. The FIFO
+of them in arrival order; each event expires the FIFO's head (16 entries at a time over small maps),
+sums L cells and pushes itself. The FIFO
 holds the events of one window (it grows when needed), so memory is O(W·H + events per Δt).
 """
 
