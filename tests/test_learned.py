@@ -91,14 +91,12 @@ def test_features_match_the_definition_across_long_gaps(seed, gap_us):
 @settings(max_examples=12, deadline=None)
 @given(st.integers(0, 2**32), st.sampled_from(["logistic", "mlp"]), st.booleans())
 def test_scores_and_codes_match_numpy_inference(seed, kind, leave_out):
-    """Also for models that leave features out (zero weight: the kernel is compiled without them): each
-    feature left out with probability 1/2."""
+    """Also for models that leave features out (zero weight), each with probability 1/2."""
     s = random_stream(seed, 400, mean_dt_us=100.0)
     model = random_model(seed, kind)
     unweighted = np.random.default_rng(seed).random(NF) < 0.5 if leave_out else np.zeros(NF, bool)
     model.w1[:, unweighted] = 0.0
     stage = LearnedFilter(model=model, keep=0.7)
-    assert stage._used == tuple(~unweighted)
     codes, score = stage.classify_scored(s.replace(label=None))
     feats = features_of(s)
     own, n = np.round(np.expm1(feats[:, 2])), np.round(np.expm1(feats[:, 0]))

@@ -141,18 +141,13 @@ def _rebase(word, shift):
 
 
 @functools.cache
-def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_live: bool,
-                   used: tuple = (True,) * N_FEATURES):
+def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_live: bool):
     """The kernel for one configuration: `n_hidden` 0 scores with a logistic model (w1[0], b1[0]),
     else with a ReLU layer of `n_hidden` units (w1, b1) and an output layer (w2, b2). The features are
     scalars (registers), the 8 neighbours one vector pass (neighbours.py), the FIFO stores each
-    event's block and polarity with its map row (no division on expiry). `used[k]` False: feature k
-    has no weight in the model (`used_features`), so the score skips it (the state is kept in full)."""
+    event's block and polarity with its map row (no division on expiry)."""
     L = 2 * RADIUS_PX + 1
     R = RADIUS_PX
-    if len(used) != N_FEATURES:
-        raise ValueError(f"used: one flag per feature ({N_FEATURES}), got {len(used)}")
-    u0, u1, u2, u3, u4, u5, u6, u7, u8, u9, u10 = (bool(v) for v in used)
 
     @njit(cache=True, nogil=True, fastmath=True)
     def kernel(t, x, y, p, start, codes, threshold, hot_min, dc_margin, word, hsum, block, blog, wp,
@@ -245,23 +240,16 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                     out_feat[ix(i), 8] = f8
                     out_feat[ix(i), 9] = f9
                     out_feat[ix(i), 10] = f10
-                # a feature without weight adds 0.0 (folded away at compile time: fastmath, no signed zeros)
                 if n_hidden == 0:
-                    s = (b1[0] + (w1[0, 0] * f0 if u0 else 0.0) + (w1[0, 1] * f1 if u1 else 0.0)
-                         + (w1[0, 2] * f2 if u2 else 0.0) + (w1[0, 3] * f3 if u3 else 0.0)
-                         + (w1[0, 4] * f4 if u4 else 0.0) + (w1[0, 5] * f5 if u5 else 0.0)
-                         + (w1[0, 6] * f6 if u6 else 0.0) + (w1[0, 7] * f7 if u7 else 0.0)
-                         + (w1[0, 8] * f8 if u8 else 0.0) + (w1[0, 9] * f9 if u9 else 0.0)
-                         + (w1[0, 10] * f10 if u10 else 0.0))
+                    s = (b1[0] + w1[0, 0] * f0 + w1[0, 1] * f1 + w1[0, 2] * f2 + w1[0, 3] * f3 + w1[0, 4] * f4
+                         + w1[0, 5] * f5 + w1[0, 6] * f6 + w1[0, 7] * f7 + w1[0, 8] * f8 + w1[0, 9] * f9
+                         + w1[0, 10] * f10)
                 else:
                     s = b2
                     for j in range(n_hidden):
-                        h = (b1[j] + (w1[j, 0] * f0 if u0 else 0.0) + (w1[j, 1] * f1 if u1 else 0.0)
-                             + (w1[j, 2] * f2 if u2 else 0.0) + (w1[j, 3] * f3 if u3 else 0.0)
-                             + (w1[j, 4] * f4 if u4 else 0.0) + (w1[j, 5] * f5 if u5 else 0.0)
-                             + (w1[j, 6] * f6 if u6 else 0.0) + (w1[j, 7] * f7 if u7 else 0.0)
-                             + (w1[j, 8] * f8 if u8 else 0.0) + (w1[j, 9] * f9 if u9 else 0.0)
-                             + (w1[j, 10] * f10 if u10 else 0.0))
+                        h = (b1[j] + w1[j, 0] * f0 + w1[j, 1] * f1 + w1[j, 2] * f2 + w1[j, 3] * f3
+                             + w1[j, 4] * f4 + w1[j, 5] * f5 + w1[j, 6] * f6 + w1[j, 7] * f7 + w1[j, 8] * f8
+                             + w1[j, 9] * f9 + w1[j, 10] * f10)
                         s += w2[j] * max(h, 0.0)
                 # the hot-pixel rules (a linear score cannot express them): the pixel fired hot_min times
                 # or more in 20 ms and more than a third of its box's events; or its DC exceeds its
@@ -290,11 +278,6 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
         return i
 
     return kernel
-
-
-def used_features(w1: np.ndarray) -> tuple:
-    """Per feature, whether a model with first layer `w1` (units × features) weighs it at all."""
-    return tuple(bool(v) for v in np.any(np.asarray(w1) != 0, axis=0))
 
 
 def _ref_log1p(c: int) -> float:

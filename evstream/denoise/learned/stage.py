@@ -18,7 +18,7 @@ import numpy as np
 from ...events import EventChunk, NoiseClass
 from ...pipeline import register
 from ..base import InPlaceClassifier, grow_fifo
-from .features import AGE_LOG1P_MS, HISTORY_US, LOG1P, N_BINS, N_FEATURES, feature_kernel, new_state, used_features
+from .features import AGE_LOG1P_MS, HISTORY_US, LOG1P, N_BINS, N_FEATURES, feature_kernel, new_state
 from .model import Model, load
 
 
@@ -46,7 +46,6 @@ class LearnedFilter(InPlaceClassifier):
         self._dc_margin = math.floor(self.dc_lam * 8 * N_BINS)
         self._model = m
         self._weights = m.folded()
-        self._used = used_features(self._weights[0])  # features without weight: left out of the score
         self._n_hidden = m.n_hidden
         self._threshold = m.threshold(self.keep)
 
@@ -76,7 +75,7 @@ class LearnedFilter(InPlaceClassifier):
         feats = features if features is not None else _NO_FEATURES
         w1, b1, w2, b2 = self._weights
         all_live = not np.count_nonzero(codes)  # (twice as fast as codes.any())
-        kernel = feature_kernel(self._n_hidden, want_score, features is not None, all_live, self._used)
+        kernel = feature_kernel(self._n_hidden, want_score, features is not None, all_live)
         i = 0
         while True:
             i = kernel(chunk.t, chunk.x, chunk.y, chunk.p, i, codes, self._threshold, self.hot_min,
