@@ -157,18 +157,22 @@ def points_by_class(t, x, y, cls, origin_us, bin_us, scale, n_classes):
     timeline (timeline µs = t - origin_us; depth = -timeline µs · scale). Returns pos (n, 3) float32 —
     class 0's points, then class 1's, ..., each in stream order; classes >= n_classes are left out —,
     the count per class, per class its rows' lengths and last timeline µs (n_rows[c] of each row of
-    `row_len`/`row_us`), and the last timeline µs of each row over all classes (the slab's rows)."""
+    `row_len`/`row_us`), and the last timeline µs of each row over all classes (the slab's rows).
+    As `t` is sorted, an event starts a new bin when it reaches the next bin's first µs (`edge`): one
+    integer division per bin, not per event (two per event were half the kernel's time)."""
     n = len(t)
     count = np.zeros(n_classes, np.int64)
     n_rows = np.zeros(n_classes, np.int64)
     last_bin = np.zeros(n_classes, np.int64)
     all_rows = 0
-    prev = np.int64(0)
+    b = np.int64(0)
+    edge = np.int64(0)
     for i in range(n):  # pass 1: sizes
-        b = (t[i] - origin_us) // bin_us
-        if i == 0 or b != prev:
+        rel = t[i] - origin_us
+        if i == 0 or rel >= edge:
+            b = rel // bin_us
+            edge = (b + 1) * bin_us
             all_rows += 1
-            prev = b
         c = np.intp(cls[i])
         if c >= n_classes:
             continue
@@ -188,10 +192,10 @@ def points_by_class(t, x, y, cls, origin_us, bin_us, scale, n_classes):
     k = -1
     for i in range(n):  # pass 2: fill
         rel = t[i] - origin_us
-        b = rel // bin_us
-        if i == 0 or b != prev:
+        if i == 0 or rel >= edge:
+            b = rel // bin_us
+            edge = (b + 1) * bin_us
             k += 1
-            prev = b
         slab_us[k] = rel
         c = np.intp(cls[i])
         if c >= n_classes:
@@ -212,24 +216,26 @@ def points_by_class(t, x, y, cls, origin_us, bin_us, scale, n_classes):
 @njit(cache=True, nogil=True)
 def class_counts_per_bin(t, cls, t0, bin_us, open_bin, n_classes):
     """The distinct bins (t - t0) // bin_us - open_bin of events `t` (sorted), ascending, and the events
-    per class in each (classes >= n_classes are not counted)."""
+    per class in each (classes >= n_classes are not counted). One division per bin, not per event: a
+    sorted event starts a new bin when it reaches the next bin's first µs (`edge`)."""
     n = len(t)
     distinct = 0
-    prev = np.int64(0)
+    edge = np.int64(0)
     for i in range(n):
-        b = (t[i] - t0) // bin_us - open_bin
-        if i == 0 or b != prev:
+        rel = t[i] - t0
+        if i == 0 or rel >= edge:
+            edge = (rel // bin_us + 1) * bin_us
             distinct += 1
-            prev = b
     bins = np.empty(distinct, np.int64)
     per = np.zeros((distinct, n_classes), np.int64)
     k = -1
     for i in range(n):
-        b = (t[i] - t0) // bin_us - open_bin
-        if i == 0 or b != prev:
+        rel = t[i] - t0
+        if i == 0 or rel >= edge:
+            q = rel // bin_us
+            edge = (q + 1) * bin_us
             k += 1
-            bins[k] = b
-            prev = b
+            bins[k] = q - open_bin
         c = np.intp(cls[i])
         if c < n_classes:
             per[k, c] += 1
