@@ -308,3 +308,67 @@ def test_thinned_copies_join_their_recording_and_leave_the_rest_unchanged():
     assert set(thinned.cond[n:]) == set(range(len(TRAIN_CONDITIONS), 2 * len(TRAIN_CONDITIONS)))
     with pytest.raises(ValueError, match="thin"):
         samples(recs, per_stream=1000, thin=(1.5,))
+
+
+def test_stretched_and_off_thinned_copies_join_their_recording():
+    """`samples(time_scale=..., off_keep=...)`: more rows of the same recording under condition indices
+    after the thinned copies'; the plain rows unchanged; a stretched copy spans `factor` × the time."""
+    from evstream import api
+    from evstream.denoise.learned.train import TRAIN_CONDITIONS, samples, stretched
+
+    rec = api.read("recordings/bar.npz")
+    recs = {"bar": rec}
+    plain = samples(recs, per_stream=1000)
+    aug = samples(recs, per_stream=1000, thin=(0.3,), time_scale=(2.0,), off_keep=(0.5,))
+    n, nc = len(plain.y), len(TRAIN_CONDITIONS)
+    assert np.array_equal(aug.X[:n], plain.X) and (aug.group == 0).all()
+    assert set(aug.cond) == set(range(4 * nc))
+    s = stretched(rec, 2.0)
+    assert s.t[-1] - s.t[0] == 2 * (rec.t[-1] - rec.t[0]) and np.array_equal(s.x, rec.x)
+
+
+def test_label_free_calibration_keeps_near_what_is_asked():
+    """`calibrate_to` sets the operating point from a stream's own events, no labels: on the bar scene
+    with 50 % noise the shipped model's fixed threshold keeps all the signal when 85 % is asked; the
+    calibrated one keeps close to 85 %, more for a higher keep. Labels given or not, the same result;
+    a stream too short to say leaves the thresholds as they were."""
+    from evstream import api
+    from evstream.denoise.learned.train import calibrate_to, stream_threshold
+
+    ev = api.read("recordings/bar.npz")
+    bare = ev.replace(label=None)
+    model = load()
+    cal = calibrate_to(model, {"bar": ev})
+    assert np.array_equal(cal.threshold_grid, calibrate_to(model, {"bar": bare}).threshold_grid)
+    assert cal.meta["calibrated_on"]["bar"]["noise_share"] == pytest.approx(1 / 3, abs=0.06)
+    assert stream_threshold(model, bare, 0.85) == pytest.approx(cal.threshold(0.85))
+    late = (ev.label == NoiseClass.SIGNAL) & (ev.t > ev.t[0] + 256_000)
+    kept = {}
+    for name, m in (("fixed", model), ("calibrated", cal)):
+        for keep in (0.7, 0.85, 0.95):
+            codes, _ = LearnedFilter(model=m, keep=keep).classify_scored(bare)
+            kept[name, keep] = ((codes == NoiseClass.SIGNAL) & late).sum() / late.sum()
+    assert kept["fixed", 0.85] > 0.97
+    assert abs(kept["calibrated", 0.85] - 0.85) < 0.08
+    assert kept["calibrated", 0.7] < kept["calibrated", 0.85] < kept["calibrated", 0.95]
+    short = calibrate_to(model, {"short": bare[:1000]})
+    assert np.array_equal(short.threshold_grid, model.threshold_grid)
+
+
+def test_calibrate_command(tmp_path):
+    """`evstream calibrate REC --out M`: a model file with the recording's operating point, that the
+    pipeline runs; no recording long enough, or the output as an input, is a usage error."""
+    from evstream.cli import main
+
+    out = tmp_path / "cal.npz"
+    assert main(["calibrate", "recordings/bar.npz", "--out", str(out)]) == 0
+    m = load(out)
+    assert "label-free" in m.meta["calibration"] and "bar" in m.meta["calibrated_on"]
+    assert m.threshold() != load().threshold()
+    assert main(["archive", "recordings/bar.npz", str(tmp_path / "a.mcap"), "--denoise", "learned",
+                 "--model", str(out)]) == 0
+    short = tmp_path / "short.npz"
+    assert main(["synth", "bar", str(short), "--duration-ms", "30", "--width", "32", "--height", "24",
+                 "-q"]) == 0
+    assert main(["calibrate", str(short), "--out", str(tmp_path / "x.npz")]) == 2
+    assert main(["calibrate", "recordings/bar.npz", "--model", str(out), "--out", str(out)]) == 2

@@ -28,6 +28,7 @@ __all__ = ["LagMeter", "Progress", "event_rate", "main", "parser", "task_flags"]
 # the order `evstream --help` lists them in
 COMMANDS = (files.add_info_parser, replay.add_parser, archive.add_parser, frames.add_parser,
             files.add_convert_parser, evaluate.add_synth_parser, evaluate.add_eval_parser, train.add_parser,
+            train.add_calibrate_parser,
             publish.add_parser, subscribe.add_parser, router.add_parser, stages.add_parser)
 
 

@@ -1,4 +1,5 @@
-"""`evstream train`: fit the learned denoiser to the user's own recordings (docs/learned.md)."""
+"""`evstream train`: fit the learned denoiser to the user's own recordings; `evstream calibrate`: set a
+model's operating point on recordings of a new sensor, without labels (docs/learned.md)."""
 
 from __future__ import annotations
 
@@ -83,3 +84,39 @@ def add_parser(sub) -> None:
                    help="features the score leaves out (docs/learned.md: the shipped model leaves out the DC ones)")
     p.add_argument("--min-duration-s", type=float, default=0.0, help="skip shorter recordings")
     p.set_defaults(func=cmd_train)
+
+
+def cmd_calibrate(args) -> int:
+    from ..denoise.learned import model as model_file
+    from ..denoise.learned import train
+
+    out = Path(args.out)
+    for rec in [*args.recordings, *([args.model] if args.model else [])]:
+        not_the_input(rec, out, "--out ")
+    if out.suffix != ".npz":
+        raise UsageError(f"--out {out}: a model file ends in .npz")
+    if not out.parent.is_dir():
+        raise UsageError(f"--out {out}: folder {out.parent} does not exist")
+    model = model_file.load(args.model)
+    recordings = read_recordings(args.recordings, 0.0, "evstream calibrate", strict=True)
+    calibrated = train.calibrate_to(model, recordings)
+    used = {n: v for n, v in calibrated.meta.get("calibrated_on", {}).items() if isinstance(v, dict)}
+    if not used:
+        raise UsageError("no recording long enough to calibrate on (each needs 2,000 events after "
+                         "its first 256 ms)")
+    calibrated.save(out)
+    shares = ", ".join(f"{n} {100 * v['noise_share']:.0f} %" for n, v in used.items())
+    print(f"wrote {out}: threshold {model.threshold():.3f} -> {calibrated.threshold():.3f} for "
+          f"{100 * calibrated.keep:.0f} % signal kept, set on {len(used)} recording(s) without labels "
+          f"(noise share estimated: {shares})")
+    return 0
+
+
+def add_calibrate_parser(sub) -> None:
+    p = sub.add_parser("calibrate", help="set a learned model's operating point on recordings of your sensor "
+                                         "(no labels needed)")
+    p.add_argument("recordings", nargs="+", help="recordings of the sensor and scenes the model will run on")
+    p.add_argument("--model", default=None, metavar="MODEL.npz", help="the model to calibrate (default: the "
+                                                                      "shipped one)")
+    p.add_argument("--out", required=True, metavar="MODEL.npz", help="the calibrated model file to write")
+    p.set_defaults(func=cmd_calibrate)

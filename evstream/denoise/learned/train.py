@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from ...events import EventChunk, NoiseClass
-from ...noise import Condition, as_signal, inject
-from .features import FEATURE_VERSION, FEATURES, HISTORY_US, N_FEATURES
+from ...noise import Condition, NoiseSpec, as_signal, inject
+from .features import FEATURE_VERSION, FEATURES, HISTORY_US, HOT_SCORE, N_FEATURES
 from .model import Model
 
 TRAIN_CONDITIONS = (Condition(noise_ratio=0.5), Condition(noise_ratio=1.0), Condition(noise_ratio=2.0),
@@ -64,13 +64,17 @@ def features_of(noisy: EventChunk) -> np.ndarray:
 
 def samples(recordings: dict[str, EventChunk], conditions: Iterable[Condition] = TRAIN_CONDITIONS,
             seeds: Iterable[int] = (SEED_BASE,), per_stream: int = 20_000, rng_seed: int = 0,
-            progress: Callable[[str], None] | None = None, thin: Iterable[float] = ()) -> Samples:
+            progress: Callable[[str], None] | None = None, thin: Iterable[float] = (),
+            time_scale: Iterable[float] = (), off_keep: Iterable[float] = ()) -> Samples:
     """Labelled feature rows of every recording × condition × seed, `per_stream` warm events each.
 
     `thin`: each recording also enters with its signal thinned at random to each of these fractions
     (same recording group, so calibration folds keep a recording's copies together): sparser edges,
     as a low-resolution or less sensitive sensor sees them, so that the model does not learn that
-    signal always comes in dense edges (docs/learned.md: the shipped model's transfer)."""
+    signal always comes in dense edges (docs/learned.md: the shipped model's transfer).
+    `time_scale`: copies with the timestamps stretched by each factor (2: a scene twice as slow);
+    `off_keep`: copies keeping each fraction of the OFF events (a sensor biased towards ON). Both join
+    the recording's group; their condition indices follow the thinned copies'."""
     rng = np.random.default_rng(rng_seed)
     thin_rng = np.random.default_rng([rng_seed, 1])  # apart from `rng`: no thinning, the same samples
     conditions = list(conditions)
@@ -88,16 +92,30 @@ def samples(recordings: dict[str, EventChunk], conditions: Iterable[Condition] =
             if len(signal) < 100:
                 continue
             _stream_samples(name, signal, conditions, seeds, per_stream, rng, progress, gi,
-                            ti * len(conditions), frac, Xs, ys, gs, cs)
+                            ti * len(conditions), "" if frac == 1.0 else f" thinned to {frac:g}", Xs, ys, gs, cs)
+        aug_rng = np.random.default_rng([rng_seed, 2, gi])
+        variants = [(f" time x{f:g}", stretched(full, f)) for f in time_scale]
+        variants += [(f" OFF kept {k:g}", full[(full.p == 1) | (aug_rng.random(len(full)) < k)]) for k in off_keep]
+        for vi, (what, signal) in enumerate(variants):
+            if len(signal) >= 100:
+                _stream_samples(name, signal, conditions, seeds, per_stream, rng, progress, gi,
+                                (1 + len(thin) + vi) * len(conditions), what, Xs, ys, gs, cs)
     return Samples(np.concatenate(Xs), np.concatenate(ys), np.concatenate(gs), np.concatenate(cs), names)
 
 
-def _stream_samples(name, signal, conditions, seeds, per_stream, rng, progress, gi, c0, frac, Xs, ys, gs, cs):
+def stretched(signal: EventChunk, factor: float) -> EventChunk:
+    """The signal with its time axis stretched by `factor` from its first event (2: twice as slow)."""
+    t0 = int(signal.t[0])
+    t = t0 + np.round((signal.t - t0) * factor).astype(np.int64)
+    return signal.replace(t=t, t_end=int(t[-1]))
+
+
+def _stream_samples(name, signal, conditions, seeds, per_stream, rng, progress, gi, c0, what, Xs, ys, gs, cs):
     """Feature rows of one signal stream under every condition and seed, appended to the lists."""
     for ci, cond in enumerate(conditions):
         for seed in seeds:
             if progress:
-                progress(f"{name}{'' if frac == 1.0 else f' thinned to {frac:g}'} {cond.name} seed {seed}")
+                progress(f"{name}{what} {cond.name} seed {seed}")
             noisy = inject(signal, cond.spec(), seed=seed, t_start_us=int(signal.t[0]),
                            t_stop_us=int(signal.t[-1]) + 1)
             X = features_of(noisy)
@@ -302,3 +320,70 @@ def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: 
         "signal_share": round(float(S.y.mean()), 4),
     })
     return model
+
+
+# -- the operating point on a stream the model never saw, without labels ------------------------------
+PROBE_RATIO = 0.2  # probe noise injected by `stream_keep_curve`: 20 % of the stream's events
+MIN_STREAM_EVENTS = 2_000
+
+
+def stream_keep_curve(model: Model, events: EventChunk, *, probe_ratio: float = PROBE_RATIO,
+                      seed: int = SEED_BASE - 1) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(thresholds, signal kept at each, noise share) on this stream, estimated without labels; None if
+    it is too short to say (fewer than 2,000 warm events).
+
+    The stream's events are signal and noise in an unknown mix: F_obs = (1 - pi) F_sig + pi F_noise.
+    Probe noise (background activity, `probe_ratio` of the events, labels known) injected into a copy
+    shows how noise scores in this scene at this rate: F_noise. Low scores are nearly all noise, so pi
+    is the least F_obs(t) / F_noise(t) over the probe's 10-50 % quantiles (a mixture-proportion
+    estimate); the signal kept at t is (S_obs(t) - pi S_noise(t)) / (1 - pi), S = 1 - F. Events a
+    hot-pixel rule rejects are noise and left out of both."""
+    from .stage import LearnedFilter
+
+    if len(events) < MIN_STREAM_EVENTS:
+        return None
+    bare = events.replace(label=None, cls=None)
+    t0, t1 = int(bare.t[0]), int(bare.t[-1])
+    probed = inject(bare, NoiseSpec(noise_ratio=probe_ratio, hot_share=0.0), seed=seed,
+                    t_start_us=t0, t_stop_us=t1 + 1)
+    _, score = LearnedFilter(model=model).classify_scored(probed.replace(label=None))
+    ok = (probed.t >= t0 + min(HISTORY_US, int(0.3 * (t1 - t0)))) & (score > HOT_SCORE / 2)
+    own = np.sort(score[ok & (probed.label == NoiseClass.SIGNAL)])
+    probe = np.sort(score[ok & (probed.label == NoiseClass.BACKGROUND)])
+    if len(own) < MIN_STREAM_EVENTS or len(probe) < 200:
+        return None
+    F_own = lambda t: np.searchsorted(own, t, side="left") / len(own)  # noqa: E731
+    F_probe = lambda t: np.searchsorted(probe, t, side="left") / len(probe)  # noqa: E731
+    low = np.quantile(probe, np.linspace(0.1, 0.5, 9))
+    pi = float(np.clip(np.min(F_own(low) / np.maximum(F_probe(low), 1e-9)), 0.0, 0.95))
+    thresholds = np.unique(np.quantile(own, np.linspace(0.0, 0.995, 400)))
+    kept = ((1 - F_own(thresholds)) - pi * (1 - F_probe(thresholds))) / (1 - pi)
+    return thresholds, np.clip(np.minimum.accumulate(kept), 0.0, 1.0), pi  # never more kept at a higher t
+
+
+def calibrate_to(model: Model, recordings: dict[str, EventChunk]) -> Model:
+    """A copy of `model` whose operating points are calibrated on these recordings, without labels
+    (`stream_keep_curve` on each, their kept curves averaged): what `evstream calibrate` writes. The
+    model's own thresholds stay where a recording is too short to say anything."""
+    found = {name: stream_keep_curve(model, ev) for name, ev in recordings.items()}
+    curves = [c for c in found.values() if c is not None]
+    out = Model(**{k: getattr(model, k) for k in ("w1", "b1", "w2", "b2", "mean", "std", "keep_grid")},
+                threshold_grid=model.threshold_grid.copy(), meta=dict(model.meta))
+    if not curves:
+        return out
+    grid = np.unique(np.concatenate([t for t, _, _ in curves]))
+    kept = np.mean([np.interp(grid, t, k) for t, k, _ in curves], axis=0)  # decreasing in the threshold
+    # the highest threshold keeping at least each fraction of the signal
+    thr = np.array([grid[np.flatnonzero(kept >= k)[-1]] if (kept >= k).any() else grid[0]
+                    for k in model.keep_grid])
+    out.threshold_grid = np.asarray(thr, np.float32).astype(np.float64)
+    out.meta.update({"calibration": "label-free, on the stream(s) it runs on (evstream calibrate)",
+                     "calibrated_on": {n: {"noise_share": round(c[2], 4)} if c else "too short: not used"
+                                       for n, c in found.items()}})
+    return out
+
+
+def stream_threshold(model: Model, events: EventChunk, keep: float | None = None) -> float:
+    """The threshold expected to keep the fraction `keep` of this stream's signal, estimated from the
+    stream itself without labels (`calibrate_to`); the model's own threshold if the stream is too short."""
+    return calibrate_to(model, {"stream": events}).threshold(keep)
