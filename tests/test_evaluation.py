@@ -34,6 +34,19 @@ def test_rows_cover_every_method_and_condition_and_are_deterministic(signal):
     assert [r["noise_ratio"] for r in a if r["condition"] == "50%"] == [0.5] * 6
 
 
+def test_cli_eval_says_when_learned_is_left_out_for_want_of_a_second_recording(tmp_path, signal, capsys):
+    """One recording: nothing to train the leave-one-recording-out model on. The learned rows were left out
+    without a word; now stderr says so, and asking for learned alone is a usage error (exit 2)."""
+    native.save(tmp_path / "bar.npz", signal)
+    args = ["eval", str(tmp_path / "bar.npz"), "--ratios", "0.5", "--rates-hz", "--seeds", "1"]
+    assert main([*args, "--methods", "learned,stcf"]) == 0
+    out, err = capsys.readouterr()
+    assert "stcf" in out and "learned" not in out
+    assert "learned: left out" in err and "second recording" in err
+    assert main([*args, "--methods", "learned"]) == 2
+    assert "learned: left out" in capsys.readouterr().err
+
+
 def test_report_has_the_papers_layout(signal):
     rows = ev.run({"bar": signal}, [ev.Condition(noise_ratio=0.5), ev.Condition(noise_ratio=2.0)], [0],
                   ["paper", "baf"])

@@ -79,6 +79,12 @@ def cmd_eval(args) -> int:
     methods = args.methods.split(",") if args.methods else list(evaluation.METHODS)
     if args.no_reference:
         return _no_reference(recordings, methods)
+    if set(methods) & set(evaluation.TRAINED) and len(recordings) < 2:  # was left out without a word
+        methods = [m for m in methods if m not in evaluation.TRAINED]
+        note = "learned: left out (scored leave-one-recording-out: it needs a second recording to train on)"
+        if not methods:
+            raise UsageError(f"--methods {args.methods}: {note}")
+        print(f"evstream eval: note: {note}", file=sys.stderr)
     conditions = [evaluation.Condition(noise_ratio=r) for r in args.ratios] + [
         evaluation.Condition(ba_rate_hz=r) for r in args.rates_hz]
     curves: dict = {}
