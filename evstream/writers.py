@@ -107,7 +107,8 @@ def _rerun(name: str, geometry, framer, options, inputs=()) -> SinkWriter:
 
 class SinkWriter:
     """A sink fed from a loop: `write` takes a pipeline's `Batch` or a bare `EventChunk` (its events count
-    as classified, or all SIGNAL when unclassified); `close` gives the sink the run's statistics."""
+    as classified, or all SIGNAL when unclassified); `close` gives the sink the run's statistics. It is a
+    pipeline Sink too: `pipe.run(source, [writer])` closes it, or on an error `fail`s it (target untouched)."""
 
     def __init__(self, sink, after_close=None, output: AtomicOutput | None = None, abandon=None):
         self.sink = sink
@@ -127,7 +128,9 @@ class SinkWriter:
             self.stats = item.stats
         self.sink.write(item)
 
-    def close(self) -> None:
+    def close(self, stats: RunStats | None = None) -> None:
+        if stats is not None:  # from Pipeline.run, which counted the run itself
+            self.stats = stats
         if self._closed:
             return
         self._closed = True
@@ -146,7 +149,13 @@ class SinkWriter:
     def __exit__(self, kind, exc, tb) -> None:
         if exc is None:
             self.close()
-            return
+        else:
+            self.fail(None, exc)
+
+    def fail(self, stats: RunStats | None, error: BaseException) -> None:
+        """After a failed run (the loop's error, or Pipeline.run's): the target stays as it was."""
+        if stats is not None:
+            self.stats = stats
         self._unclosed.detach()
         if isinstance(self.sink, FileSink):  # a failed run leaves what was there before
             self.sink.abandon()

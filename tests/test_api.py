@@ -152,6 +152,26 @@ def test_a_loop_that_fails_leaves_the_old_file(tmp_path, suffix):
     assert out.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == [out.name]
 
 
+@pytest.mark.parametrize("suffix", [".npz", ".raw", ".mcap"])
+def test_an_open_sink_is_a_sink_of_pipeline_run(tmp_path, suffix):
+    """`pipe.run(source, [evstream.open_sink(OUT)])` was a TypeError (Pipeline.run closes its sinks with the
+    run's statistics; SinkWriter.close took none). Now it writes what the loop writes; a run that fails
+    (Pipeline.run calls `fail`) leaves the old file and no temporary."""
+    out = tmp_path / f"a{suffix}"
+    stats = evstream.build_pipeline("paper").run(evstream.open(BAR), [evstream.open_sink(out)])
+    back, kept = evstream.read(out), evstream.clean("paper", evstream.read(BAR))
+    assert len(back) == len(kept) == stats.per_class[0] and np.array_equal(back.t, kept.t)
+
+    def failing():
+        yield from evstream.open(BAR, end_us=100_000)
+        raise RuntimeError("the source failed")
+
+    before = out.read_bytes()
+    with pytest.raises(RuntimeError, match="the source failed"):
+        evstream.build_pipeline("paper").run(failing(), [evstream.open_sink(out, source=evstream.open(BAR))])
+    assert out.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
 def test_mcap_and_rrd_sinks_from_a_loop(tmp_path):
     source = evstream.open(BAR)
     with evstream.open_sink(tmp_path / "a.mcap", geometry=source.geometry) as mcap, \
