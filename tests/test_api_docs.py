@@ -1,4 +1,5 @@
-"""Every ```python block of docs/api.md and README.md runs as written, from a directory holding the recordings."""
+"""Every ```python block of docs/api.md, docs/transforms.md and README.md runs as written, from a directory
+holding the recordings."""
 
 import os
 import re
@@ -7,7 +8,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = [ROOT / "docs" / "api.md", ROOT / "README.md"]
+DOCS = [ROOT / "docs" / "api.md", ROOT / "docs" / "transforms.md", ROOT / "README.md"]
 BLOCKS = [(doc, code) for doc in DOCS
           for code in re.findall(r"^```python\n(.*?)^```$", doc.read_text(encoding="utf-8"), re.S | re.M)]
 
