@@ -36,8 +36,8 @@ FRAMING = "evstream/framing/"
 TARGETS = {
     "testing": (["evstream/testing.py"], ["tests/test_invariant_kit.py"]),
     "sources_base": (["evstream/sources/_base.py"],
-                     ["tests/test_sources_formats.py", "tests/test_sources_bad_input.py",
-                      "tests/test_sources_kernels.py"]),
+                     ["tests/test_sources_base.py", "tests/test_sources_formats.py",
+                      "tests/test_sources_bad_input.py", "tests/test_sources_kernels.py"]),
     # represent.py is left out: its tests (test_represent.py) are the representations' own module's
     "framing": ([FRAMING + f for f in ("arrays.py", "base.py", "fixed.py", "options.py", "overlap.py",
                                        "render.py", "stats.py")],
