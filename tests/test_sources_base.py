@@ -112,6 +112,46 @@ def test_chunks_by_time_are_the_bins_from_the_first_event(tmp_path_factory, layo
     check_chunks(chunks, t, cuts, policy == "error")
 
 
+@given(layouts(), st.integers(1, 60), st.integers(1, 6))
+def test_chunks_by_time_are_cut_at_the_most_events_a_chunk_may_hold(tmp_path_factory, layout, chunk_us, most):
+    """A bin of more than MAX_CHUNK_EVENTS events (4 million; here a few) is cut into pieces of that
+    many, the later pieces still in the same bin."""
+    from evstream.sources import _base
+
+    t, blocks, *_ = layout
+    src = source(tmp_path_factory.mktemp("b"), blocks, 10, chunk_us=chunk_us)
+    saved, _base.MAX_CHUNK_EVENTS = _base.MAX_CHUNK_EVENTS, most
+    try:
+        chunks = list(src)
+    finally:
+        _base.MAX_CHUNK_EVENTS = saved
+    bins = (t - t[0]) // chunk_us
+    starts = [0, *(np.flatnonzero(np.diff(bins)) + 1).tolist(), len(t)]
+    cuts = sorted({c for a, b in zip(starts, starts[1:]) for c in range(a, b, most)} | {len(t)})
+    check_chunks(chunks, t, cuts, True)
+
+
+@given(st.lists(st.lists(st.integers(0, 30), min_size=1, max_size=5), max_size=5), st.integers(0, 35),
+       st.integers(1, 12))
+def test_queue_time_cut_matches_its_reference(parts, boundary, most):
+    """The first index >= 1 at or past the boundary (at most `most`), else `most` when more than that
+    many wait (a cut needs the event after it), else -1. (The queue never holds an empty block.)"""
+    from evstream.sources._base import _Queue
+
+    q = _Queue()
+    for part in parts:
+        z = np.zeros(len(part), np.uint16)
+        q.push(Block(np.array(sorted(part), np.int64), z, z, z.astype(np.uint8)))
+    t = [v for part in parts for v in sorted(part)]
+    g = next((i for i in range(1, len(t)) if t[i] >= boundary), None)
+    assert q.n == len(t)
+    assert q.time_cut(boundary, most) == (min(g, most) if g is not None else most if len(t) > most else -1)
+    for i, v in enumerate(t):
+        assert q.t_at(i) == v
+    with pytest.raises(IndexError):
+        q.t_at(len(t))
+
+
 def test_chunks_by_time_skip_empty_bins_and_keep_the_anchor():
     """Bins are anchored at the first event: 10 µs bins from t = 3 are [3, 13), [13, 23), ...; an
     event at exactly a bin's start opens it, empty bins make no chunk."""
