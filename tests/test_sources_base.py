@@ -3,6 +3,7 @@ decoded blocks (by count and by time, with their watermarks), the byte an error 
 chunk straddles, the column readers' blocks and seek, the column-order guess, headers, records, info."""
 
 import io
+import os
 import re
 import warnings
 
@@ -226,7 +227,8 @@ def test_dropped_events_are_counted_and_warned_about_where_the_stream_is_read(tm
     with pytest.warns(EventWarning, match=rf"^{re.escape(src.path)}: 2 events dropped: their timestamps go back "
                                           r"\(timestamp policy 'drop'\)$") as caught:
         chunks = list(src)
-    assert caught[0].filename == __file__  # stacklevel: the line that read the stream, not the library
+    if "MUTANT_UNDER_TEST" not in os.environ:  # (under mutmut, its trampoline is one frame more)
+        assert caught[0].filename == __file__  # stacklevel: the line that read the stream, not the library
     assert [c.t.tolist() for c in chunks] == [[5, 6, 7, 8]]
     info = src.info()
     src.counters["words"] = 4

@@ -26,6 +26,13 @@ def test_unwrap_matches_reference_across_calls(bits, parts):
     assert got == reference_unwrap([v for part in parts for v in part], bits)
 
 
+def test_unwrap_counts_wraps_and_a_drop_of_exactly_half_is_no_wrap():
+    u = Unwrapper(4)  # period 16, half 8
+    out = u(np.array([8, 0, 15, 2, 9, 1, 0], np.uint32))  # 8 -> 0, 9 -> 1: a drop of half is no wrap
+    assert out.dtype == np.int64 and out.tolist() == [8, 0, 15, 18, 25, 17, 16] and u.wraps == 1
+    assert u(np.array([9, 0], np.uint32)).tolist() == [25, 32] and u.wraps == 2  # carried across calls
+
+
 @given(st.lists(st.integers(-50, 50), max_size=30), st.integers(-60, 60), st.integers(0, 3))
 def test_first_at_or_after_matches_reference(ts, boundary, start):
     t = np.array(ts, np.int64)
