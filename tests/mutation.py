@@ -61,6 +61,7 @@ IGNORE = shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc", "*.pyc")
 # Mutants no input can tell from the code (docs/testing.md says why for each): counted apart, not as
 # survivors. mutmut names a mutant by function and number, so a name here holds while that function's
 # source is unchanged.
+_B = "evstream.sources._base."
 _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     # evstream/testing.py
     "np.random.default_rng returns a Generator it is given unaltered": ["evstream.testing.x__rng__mutmut_1"],
@@ -123,6 +124,40 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "np.issubdtype(None, np.floating) holds, and an integer column always equals its floor": [
         f"evstream.sources._base.x_to_events__mutmut_{n}" for n in (20, 38, 40, 41, 58)],
     "to_events: a bool polarity through (p > 0) gives the same 0/1": ["evstream.sources._base.x_to_events__mutmut_89"],
+    # sources/_base.py (session 8)
+    "unwrap: a first value with last = 0 (or the start value +1 / -2 for -1) can never be a wrap: a drop "
+    "from 0 or 1 is never more than half the clock": [
+        _B + "x_unwrap_kernel__mutmut_21",
+        _B + "x_unwrap_kernel__mutmut_22",
+        _B + "xǁUnwrapperǁ__init____mutmut_8",
+        _B + "xǁUnwrapperǁ__init____mutmut_9"],
+    "np.array of Python ints without a dtype is int64, the dtype given": [
+        _B + "xǁUnwrapperǁ__init____mutmut_4",
+        _B + "xǁUnwrapperǁ__init____mutmut_6"],
+    "max(2, block_bytes // 16): block_bytes is at least 1024, so the step is at least 64 either way":
+        [_B + "xǁFileSourceǁ_column_blocks__mutmut_6"],
+    "a watermark equal to the chunk's last time is the default watermark": [_B + "xǁFileSourceǁ_emit__mutmut_37"],
+    "t_at past the queue: the IndexError's argument (never shown; only its type is relied on)":
+        [_B + "xǁ_Queueǁt_at__mutmut_5"],
+    "_next_bin with t_next == bin_start returns bin_start on either branch": [_B + "x__next_bin__mutmut_5"],
+    "codec names are case-insensitive ('LATIN-1' is 'latin-1')": [
+        _B + "x_read_header_lines__mutmut_25",
+        _B + "x_read_header_lines__mutmut_35"],
+    "iter_records: return for break after the last read: nothing follows the loop but closing the file":
+        [_B + "x_iter_records__mutmut_38"],
+    "_Queue.take: k = None for k = 0 ends the loop the same": [_B + "xǁ_Queueǁtake__mutmut_30"],
+    "time_cut never returns 0 (index >= 1 in the first block, which is never empty), so cut <= 0 / < 1 is "
+    "cut < 0; and -2 for -1 is below 0 too": [
+        _B + "xǁFileSourceǁ__iter____mutmut_53",
+        _B + "xǁFileSourceǁ__iter____mutmut_54",
+        _B + "xǁ_Queueǁtime_cut__mutmut_28"],
+    "guess_columns: rising = fractional when there are 0 or 2+ fractional columns has len != 1 like []; "
+    "range(5) adds a 5th index after the two kept; a placeholder other than '' or a 5th '' is overwritten "
+    "or joins to nothing": [f"{_B}x_guess_columns__mutmut_{n}" for n in (37, 63, 67, 68)],
+    "warn's stacklevel (3 -> 4 or default): mutmut's trampoline adds a frame, so no test can see it under "
+    "mutmut; outside it, test_dropped_events_are_counted_and_warned_about_where_the_stream_is_read fails on "
+    "both (checked by hand)": [_B + "xǁFileSourceǁwarn__mutmut_6",
+        _B + "xǁFileSourceǁwarn__mutmut_7"],
     "the last-event map as float64: NEVER_US (-2^62) and every time difference below 2^53 µs (285 years) "
     "are exact, so the same comparisons": [
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_4",
