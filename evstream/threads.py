@@ -34,8 +34,8 @@ _POLL_S = 0.05  # how often a blocked thread looks whether it should stop
 def enabled(default: bool = True) -> bool:
     """Whether a command overlaps reading, stages and writing: EVSTREAM_THREADS (0/1) when set, else the
     command's `default` — measured per command (docs/archive.md): on this project's 2-core machine threads
-    pay in `archive` and `replay --save` (since its sink's points became one kernel pass and one Arrow
-    partition) and cost time in `convert`, whose RAW encoder already has a thread of its own."""
+    pay in `archive`; `replay --save` threaded outruns Rerun's encoder, whose queue then grows with the
+    recording (no bound on memory), and `convert`'s RAW encoder already has a thread of its own."""
     value = os.environ.get("EVSTREAM_THREADS")
     if value is None or not value.strip():
         return default

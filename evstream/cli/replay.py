@@ -104,7 +104,7 @@ def cmd_replay(args) -> int:
 
         with StopOnSignal() as stop, out.guard():  # Ctrl-C: stop after the chunk in progress, then the summary
             stats = pipeline.run(paced(lag.watch(source), args.speed), [sink], on_batch=on_batch,
-                                 threads=threads.enabled(), stop=lambda: stop.signum is not None)
+                                 threads=threads.enabled(default=False), stop=lambda: stop.signum is not None)
         progress.done()
         stopped_by = signal.Signals(stop.signum).name if stop.signum else None
         existed = bool(save) and Path(save).exists()
