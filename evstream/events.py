@@ -36,6 +36,7 @@ class NoiseClass(enum.IntEnum):
 
 
 N_CLASSES = len(NoiseClass)
+_UINT8 = np.dtype(np.uint8)
 
 EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "u1")])
 _FIELD_DTYPES = {"t": np.int64, "x": np.uint16, "y": np.uint16, "p": np.uint8}
@@ -195,7 +196,7 @@ class EventChunk:
     def with_classes(self, cls: np.ndarray) -> EventChunk:
         """`replace(cls=cls)` without re-checking the other fields (~6 µs a call in a stage): `cls` must
         be a 1-D uint8 array of len(self) events, as every stage writes."""
-        if cls.dtype != np.uint8 or cls.shape != self.t.shape:
+        if (cls.dtype is not _UINT8 and cls.dtype != _UINT8) or cls.shape != self.t.shape:  # `is`: 0.3 µs less
             raise EventError(f"EventChunk: cls must be uint8 of shape {self.t.shape}, got {cls.dtype} {cls.shape}")
         out = object.__new__(type(self))
         out.__dict__.update(self.__dict__)

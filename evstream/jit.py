@@ -111,24 +111,38 @@ class Kernel:
 class Bound:
     """A kernel with its middle arguments fixed (a stage's state arrays and parameters), their types keyed
     once: a call keys only the arguments it passes (about 0.2 µs each; a stage's ~20 arguments would
-    otherwise cost more per call than the dispatch itself)."""
+    otherwise cost more per call than the dispatch itself). The functions of the ahead-of-time module
+    for these fixed types are looked up by the passed arguments' types alone, each dtype by its identity
+    (a dtype hashes in ~0.1 µs, not cached, and tuples of them are hashed at every look-up): a dtype equal
+    to a built-in one but another object misses and goes to numba, as any type not compiled ahead."""
 
-    __slots__ = ("kernel", "head", "fixed", "fixed_key")
+    __slots__ = ("kernel", "head", "fixed", "fixed_key", "_aot", "_table")
 
     def __init__(self, kernel: Kernel, head: int, fixed: tuple):
         self.kernel, self.head, self.fixed = kernel, head, tuple(fixed)
         self.fixed_key = tuple(arg_key(a) for a in self.fixed)
+        self._aot, self._table = None, {}
 
     def __call__(self, *args):
         kernel, h = self.kernel, self.head
-        if kernel.aot:
-            key = tuple([(a.dtype, a.ndim, a.flags.num & _FLAGS) if type(a) is _ARRAY
-                         else _SCALARS.get(type(a), type(a)) for a in args])
-            fn = kernel.aot.get(key[:h] + self.fixed_key + key[h:])
+        aot = kernel.aot
+        if aot:
+            if self._aot is not aot:  # kernel.aot is replaced, never changed in place (use_aot, tests)
+                self._table = self.table(aot)
+                self._aot = aot
+            fn = self._table.get(tuple([(id(a.dtype), a.ndim, a.flags.num & _FLAGS) if type(a) is _ARRAY
+                                        else id(_SCALARS.get(type(a), type(a))) for a in args]))
             if fn is not None:
                 return fn(*args[:h], *self.fixed, *args[h:])
         kernel.jit_calls += 1
         return kernel.dispatcher(*args[:h], *self.fixed, *args[h:])
+
+    def table(self, aot: dict) -> dict:
+        """{the passed arguments' keys, dtypes by identity: function} of `aot`'s entries for the fixed types."""
+        h, n = self.head, len(self.fixed_key)
+        by_id = lambda k: (id(k[0]), k[1], k[2]) if isinstance(k, tuple) else id(k)  # noqa: E731
+        return {tuple(map(by_id, key[:h] + key[h + n :])): fn for key, fn in aot.items()
+                if key[h : h + n] == self.fixed_key}
 
 
 def bind(kernel, head: int, fixed: tuple):
