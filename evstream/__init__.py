@@ -5,6 +5,7 @@ name, `classify`/`clean` chunks, streams or structured arrays, `open_sink` to wr
 tonic-style transform, `catalogue` to list every stage and framer.
 """
 
+from . import _start  # noqa: F401 - first: Ctrl-C while the package loads (evstream/_start.py)
 from .api import (
     Denoise,
     as_geometry,

@@ -11,15 +11,20 @@ that Dask re-runs after a worker died safe: a half-written output never sits at 
 from __future__ import annotations
 
 import glob
+import inspect
 import logging
 import os
+import signal
+import threading
 import time
+import uuid
 import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["RECORDING_SUFFIXES", "Task", "TaskResult", "out_name", "plan", "run_many", "start_client", "up_to_date"]
+__all__ = ["RECORDING_SUFFIXES", "STOP_WAIT_S", "Task", "TaskInterrupted", "TaskResult", "TaskStop", "out_name", "plan",
+           "run_many", "start_client", "up_to_date"]
 
 # What a folder walk takes as a recording (open_source reads by content; a walk needs a name filter).
 RECORDING_SUFFIXES = (".npz", ".npy", ".h5", ".hdf5", ".aedat4", ".aedat", ".mat", ".mcap", ".dat", ".raw",
@@ -37,7 +42,7 @@ class Task:
 class TaskResult:
     source: str
     out: str
-    status: str  # "done", "skipped" (up to date) or "failed"
+    status: str  # "done", "skipped" (up to date), "failed" or "interrupted" (stopped, or never started)
     seconds: float = 0.0
     events: int | None = None
     classes: dict | None = None  # noise class name -> events
@@ -152,14 +157,15 @@ def worker_env() -> dict[str, str]:
     """One thread per worker process: N workers use N cores, not N x cores. Numba's kernels on one thread,
     and a task's pipeline serial (EVSTREAM_THREADS=0: a one-file command otherwise reads and writes on
     threads beside its stages, using cores the other workers have)."""
-    return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "EVSTREAM_THREADS": "0"}
+    return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "EVSTREAM_THREADS": "0", "EVSTREAM_BATCH_WORKER": "1"}
+
 
 
 def start_client(jobs: int | None = None, scheduler: str | None = None):
     """A Dask client: on an existing scheduler (`tcp://HOST:8786`), or on a new local cluster of `jobs`
     worker processes (default: the cores this process may use), one thread each, its HTTP endpoint on a
-    free loopback port (no clash with another cluster's 8787), its log at errors only (a slow shutdown's
-    warnings are not the user's business; a task's failure is reported by run_many). Returns
+    free loopback port (no clash with another cluster's 8787), its log silenced (a shutdown's heartbeat
+    errors and warnings are not the user's business: run_many reports each task's failure). Returns
     (client, cluster or None); close both when done."""
     from distributed import Client, LocalCluster
 
@@ -171,29 +177,117 @@ def start_client(jobs: int | None = None, scheduler: str | None = None):
     # pre-spawn: in the worker process's environment from its start (a spawned worker imports numba before
     # the Nanny's `env` is applied, when the parent's __main__ is re-imported: the console script's is)
     pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **worker_env()}
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn}):
+    preload = [*dask.config.get("distributed.worker.preload", []), "evstream"]  # evstream/_start.py, at the latest
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn, "distributed.worker.preload": preload}):
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
-                               env=worker_env(), host="127.0.0.1", silence_logs=logging.ERROR)
+                               env=worker_env(), host="127.0.0.1", silence_logs=logging.CRITICAL)
     return Client(cluster), cluster
 
 
-def _run_task(work: Callable, source: str, out: str, params: dict) -> dict:
-    """On a worker: the one-file function, timed; its error as one line (the job goes on)."""
+STOP_WAIT_S = 10.0  # after a stop, how long the running tasks get to clean up before the cluster closes
+STOP_GRACE_S = 3.0  # ... of which this long to end at their next chunk; then interrupted where they are
+
+# On each worker: the runs told to stop (run id -> signal number) and the tasks running per run, under one
+# lock: a task either starts before the stop (and is waited for) or sees it and does nothing.
+_lock = threading.Lock()
+_stopped: dict[str, int] = {}
+_running: dict[str, dict[str, int]] = {}  # run id -> task key -> the thread running it
+
+
+class TaskInterrupted(KeyboardInterrupt):
+    """Raised inside a task told to stop: its writers clean up as after a Ctrl-C in the one-file command
+    (a temporary removed, an archive so far set aside)."""
+
+
+class TaskStop:
+    """A task's view of its run's stop, for the one-file functions: `.signum` (the signal that stopped
+    the run, else None), like the CLI's StopOnSignal; calling it says whether to stop."""
+
+    def __init__(self, run: str):
+        self.run = run
+
+    @property
+    def signum(self) -> int | None:
+        return _stopped.get(self.run)
+
+    def __call__(self) -> bool:
+        return self.run in _stopped
+
+    def check(self) -> None:
+        """Raise TaskInterrupted once the run is stopped."""
+        if self.run in _stopped:
+            raise TaskInterrupted(f"stopped by {signal.Signals(_stopped[self.run]).name}")
+
+
+def _stop_run(run: str, signum: int) -> list[str]:
+    """On a worker (client.run): the run stopped; returns the keys of its tasks running now."""
+    with _lock:
+        _stopped[run] = signum
+        return sorted(_running.get(run, ()))
+
+
+def _interrupt_run(run: str) -> int:
+    """On a worker (client.run): TaskInterrupted raised in each of the run's tasks still running, at its
+    thread's next Python instruction (what a second Ctrl-C does to a one-file command: a writer busy
+    closing, a long chunk, stopped where it is; its clean-up runs). Under the lock, so only in a thread
+    still inside its task (_run_task catches one that lands late). Returns how many."""
+    import ctypes
+
+    with _lock:
+        threads = list(_running.get(run, {}).values())
+        for ident in threads:
+            ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(ident), ctypes.py_object(TaskInterrupted))
+        return len(threads)
+
+
+def _takes_stop(work: Callable) -> bool:
+    try:
+        return "stop" in inspect.signature(work).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def _run_task(work: Callable, source: str, out: str, params: dict, run: str | None = None, key: str = "") -> dict:
+    """On a worker: the one-file function, timed; its error as one line (the job goes on). With `run`: a
+    run stopped before the task started skips it; `work` taking `stop` gets a TaskStop to poll."""
     t0 = time.perf_counter()
+    stopped = {"ok": False, "interrupted": True, "started": True, "error": "interrupted", "warnings": []}
+    try:
+        if run is not None:
+            with _lock:
+                if run in _stopped:
+                    return {**stopped, "started": False, "error": "not started", "seconds": 0.0}
+                _running.setdefault(run, {})[key] = threading.get_ident()
+        try:
+            return _call(work, source, out, params, run, t0)
+        finally:
+            if run is not None:
+                with _lock:
+                    _running.get(run, {}).pop(key, None)
+    except KeyboardInterrupt:  # _interrupt_run's exception, landed after the task's own handler
+        return {**stopped, "seconds": time.perf_counter() - t0}
+
+
+def _call(work: Callable, source: str, out: str, params: dict, run: str | None, t0: float) -> dict:
+    extra = {"stop": TaskStop(run)} if run is not None and _takes_stop(work) else {}
     with warnings.catch_warnings(record=True) as caught:  # a reader's warning (a truncated file) goes back
         try:  # with the result: a worker's stderr is not the user's (another machine's, with --scheduler)
-            summary = work(source, out, **params)
+            summary = work(source, out, **params, **extra)
+        except KeyboardInterrupt as e:  # TaskInterrupted: its writers cleaned up, as after a Ctrl-C
+            return {"ok": False, "interrupted": True, "started": True, "error": str(e) or "interrupted",
+                    "seconds": time.perf_counter() - t0, "warnings": [str(w.message) for w in caught]}
         except Exception as e:  # one recording's failure is reported, not the job's
             return {"ok": False, "error": f"{type(e).__name__}: {e}" if not str(e) else str(e),
                     "seconds": time.perf_counter() - t0, "warnings": [str(w.message) for w in caught]}
-    return {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0,
+    stopped = run is not None and run in _stopped and isinstance(summary, dict) and summary.get("partial")
+    return {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0, "interrupted": bool(stopped),
             "warnings": [str(w.message) for w in caught]}
 
 
 def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, client=None, jobs: int | None = None,
              scheduler: str | None = None, force: bool = False, retries: int = 2,
              on_result: Callable[[TaskResult, int, int], None] | None = None,
-             warm: Callable[[], None] | None = None) -> list[TaskResult]:
+             warm: Callable[[], None] | None = None, stop: Callable[[], object] | None = None) -> list[TaskResult]:
     """Run `work(source, out, **params)` for every task (skipping up-to-date outputs unless `force`) on a
     Dask cluster; returns one TaskResult per task, in the tasks' order. `work` must be importable on the
     workers (a module-level function) and return a dict (with `events_in` and `events_signal`, ... when it
@@ -201,9 +295,14 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     instead of once per worker), then on every worker (its imports and cached kernels loaded, so a
     recording's seconds are its own; `warm` must then be picklable by reference, e.g. a partial).
     `retries`: Dask's re-runs of a task whose worker died or that raised.
-    `on_result(result, done, total)` is called as each finishes (progress)."""
-    from distributed import as_completed
+    `on_result(result, done, total)` is called as each finishes (progress).
 
+    Stopping: `stop()` is polled (true, or a signal number, ends the run; a KeyboardInterrupt here does
+    too, and is raised again after). The tasks not started are dropped; the running ones are told (a
+    `work` taking `stop=` gets a TaskStop: the one-file commands end as after a Ctrl-C, their temporaries
+    removed or an archive so far set aside); those still running after STOP_GRACE_S get TaskInterrupted
+    raised where they are (a second Ctrl-C's effect; their clean-up runs), and all are waited for up to
+    STOP_WAIT_S; they come back "interrupted". A second KeyboardInterrupt here closes the cluster at once."""
     params = params or {}
     results: dict[Task, TaskResult] = {}
     todo = []
@@ -216,44 +315,137 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     if on_result:
         for r in results.values():
             on_result(r, done, total)
-    if todo:
-        if warm is not None:
-            warm()
-        own = client is None
-        cluster = None
-        if own:
-            client, cluster = start_client(jobs, scheduler)
-        try:
-            if warm is not None:  # each worker's imports and cached kernels loaded before its first recording
-                client.run(warm)
-            futures = {client.submit(_run_task, work, t.source, t.out, params, retries=retries, pure=False,
-                                     key=f"evstream-{i}-{os.path.basename(t.source)}"): t
-                       for i, t in enumerate(todo)}
-            for future in as_completed(futures):
-                t = futures[future]
-                try:
-                    got = future.result()
-                except Exception as e:  # the task's worker kept dying (Dask gave up), or it was lost
-                    got = {"ok": False, "error": f"{type(e).__name__}: {e}", "seconds": 0.0}
-                results[t] = _result(t, got)
-                done += 1
-                if on_result:
-                    on_result(results[t], done, total)
-        finally:
-            if own:
-                client.close()
-                if cluster is not None:
-                    cluster.close()
+
+    def stopping():
+        return stop is not None and stop()
+
+    count = [done]
+
+    def report(r: TaskResult) -> None:
+        count[0] += 1
+        if on_result:
+            on_result(r, count[0], total)
+
+    if todo and not stopping():
+        results.update(_submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm, stop, stopping,
+                                        report))
+    for t in tasks:  # stopped before they were submitted
+        results.setdefault(t, TaskResult(t.source, t.out, "interrupted", error="not started"))
     return [results[t] for t in tasks]
+
+
+def _submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm, stop, stopping, report) -> dict:
+    """run_many's cluster part: start (unless given), warm, submit, collect; a stop at any moment (during
+    the start too: a worker killed by the terminal's Ctrl-C while it spawned only says that the run
+    stopped) drops the unstarted tasks and waits for the running ones (_stop)."""
+    from distributed import as_completed
+
+    results: dict[Task, TaskResult] = {}
+
+    def take(t: Task, got: dict) -> None:
+        results[t] = _result(t, got)
+        report(results[t])
+
+    own, cluster, futures, run, interrupt = client is None, None, {}, uuid.uuid4().hex, None
+    try:
+        try:
+            if warm is not None:
+                warm()
+            if own and not stopping():
+                client, cluster = start_client(jobs, scheduler)
+            if warm is not None and client is not None and not stopping():
+                client.run(warm)  # each worker's imports and cached kernels loaded before its first recording
+            if client is not None and not stopping():
+                keys = [f"evstream-{i}-{os.path.basename(t.source)}-{run[:8]}" for i, t in enumerate(todo)]
+                futures = {client.submit(_run_task, work, t.source, t.out, params, run, key, retries=retries,
+                                         pure=False, key=key): t for t, key in zip(todo, keys)}
+            pending = as_completed(futures)
+            while not pending.is_empty() and not stopping():
+                for future in pending.next_batch(block=False):
+                    take(futures[future], _got(future))
+                time.sleep(0.05)
+        except KeyboardInterrupt as e:  # from Python: stop as asked, then say so
+            interrupt = e
+        except Exception:
+            if not stopping():
+                raise  # else what the stop broke (a worker that died of the Ctrl-C while it started)
+        if (interrupt is not None or stopping()) and client is not None and futures:
+            signum = stop() if stop is not None else None
+            signum = signum if isinstance(signum, int) and not isinstance(signum, bool) else signal.SIGINT
+            for t, got in _stop(client, futures, run, int(signum), set(results)).items():
+                take(t, got)
+    finally:
+        if own and client is not None:
+            _close_quietly(client, cluster)
+    if interrupt is not None:
+        raise interrupt
+    return results
+
+
+def _got(future) -> dict:
+    try:
+        return future.result()
+    except Exception as e:  # the task's worker kept dying (Dask gave up), or it was lost
+        return {"ok": False, "error": f"{type(e).__name__}: {e}", "seconds": 0.0}
+
+
+def _stop(client, futures: dict, run: str, signum: int, finished: set) -> dict:
+    """Tell the workers the run stopped, drop the tasks not started, wait up to STOP_WAIT_S for the
+    running ones (their clean-up); returns what each unfinished task came to."""
+    from distributed import wait
+
+    running = set()
+    for keys in client.run(_stop_run, run, signum, on_error="ignore").values():
+        running.update(keys if isinstance(keys, list) else ())
+    left = {f: t for f, t in futures.items() if t not in finished}
+    waiting = [f for f in left if f.key in running]
+    client.cancel([f for f in left if f.key not in running])
+    for timeout, then in ((STOP_GRACE_S, _interrupt_run), (STOP_WAIT_S - STOP_GRACE_S, None)):
+        try:
+            wait(waiting, timeout=timeout)
+            break
+        except TimeoutError:
+            if then is not None:
+                client.run(then, run, on_error="ignore")
+    got = {}
+    for f, t in left.items():
+        if f.done() and f.status == "finished":
+            got[t] = _got(f)
+        elif f.key in running:
+            got[t] = {"ok": False, "interrupted": True, "started": True, "seconds": 0.0,
+                      "error": f"still running {STOP_WAIT_S:g} s after the stop: ended with the cluster (a "
+                               "temporary NAME.part beside its output may be left)"}
+        else:
+            got[t] = {"ok": False, "interrupted": True, "started": False, "error": "not started", "seconds": 0.0}
+    return got
+
+
+def _close_quietly(client, cluster) -> None:
+    """Close the client and the cluster it started with distributed's logging off: a worker's heartbeat
+    to a scheduler already gone, or a comm closed mid-message, is no news to the user."""
+    names = ("distributed", "tornado", "asyncio")
+    levels = {name: logging.getLogger(name).level for name in names}
+    for name in names:
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    try:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
 
 
 def _result(t: Task, got: dict) -> TaskResult:
     said = list(got.get("warnings", ()))
+    if got.get("interrupted") and not got["ok"]:
+        return TaskResult(t.source, t.out, "interrupted", seconds=got["seconds"], error=got["error"], warnings=said)
     if not got["ok"]:
         return TaskResult(t.source, t.out, "failed", seconds=got["seconds"], error=got["error"], warnings=said)
     s = got["summary"] or {}
     classes = {name: int(s[f"events_{name}"]) for name in ("signal", "background", "hot_pixel")
                if f"events_{name}" in s} or None
     events = s.get("events_in", s.get("events"))
-    return TaskResult(t.source, t.out, "done", seconds=got["seconds"], events=events, classes=classes, summary=s,
-                      warnings=said)
+    return TaskResult(t.source, t.out, "interrupted" if got.get("interrupted") else "done", seconds=got["seconds"],
+                      events=events, classes=classes, summary=s, warnings=said,
+                      error=f"stopped; the archive so far is {s.get('mcap')}" if got.get("interrupted") else None)

@@ -17,6 +17,7 @@ import warnings
 # set, wins).
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off")
 
+from .. import _start
 from ..events import EventError
 from . import archive, evaluate, files, frames, publish, replay, router, stages, subscribe, train
 from .batch import flags_of
@@ -54,6 +55,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def main(argv=None) -> int:
+    _start.release()  # loaded: Ctrl-C is KeyboardInterrupt again (or the command's own handler)
     ap = parser()
     args = ap.parse_args(argv)  # exits 2 on usage errors
     with warnings.catch_warnings():  # restores the caller's warning display afterwards

@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from ..batch import TaskStop
 from ..framing import options as framer_options
 from ..writers import archive
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
@@ -64,7 +65,7 @@ def interrupted_note(out: str, summary: dict) -> str:
     return f"{target}; the archive of the events up to there is {summary['mcap']}"
 
 
-def archive_one(args, stop: StopOnSignal | None = None):
+def archive_one(args, stop: StopOnSignal | TaskStop | None = None):
     """Archive `args.source` to `args.out` (the one-file command without its printing): the flags checked
     and turned into a pipeline, then `evstream.archive`; returns (summary dict, RunStats, the folder it
     created or '')."""
@@ -91,12 +92,13 @@ def archive_one(args, stop: StopOnSignal | None = None):
     return summary, pipeline.stats, created
 
 
-def archive_file(source: str, out: str, **flags) -> dict:
+def archive_file(source: str, out: str, stop=None, **flags) -> dict:
     """One task of a batch (on a Dask worker): archive `source` to `out` with the command's flags (plain
-    values); returns the summary."""
+    values); returns the summary. `stop` (evstream.batch.TaskStop): the run stopped, the archive so far is
+    set aside as after a Ctrl-C (the summary's `partial`)."""
     args = argparse.Namespace(**flags, source=source, out=out)
     args.quiet = True
-    return archive_one(args)[0]
+    return archive_one(args, stop)[0]
 
 
 def add_parser(sub) -> None:

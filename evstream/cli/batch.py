@@ -6,12 +6,13 @@ from __future__ import annotations
 import functools
 import json
 import os
+import signal
 import sys
 import tempfile
 from collections.abc import Callable
 
 from .. import batch
-from .common import Progress, UsageError
+from .common import Progress, StopOnSignal, UsageError
 
 # The parsed flags that are not the one-file function's (or are not plain values for the wire).
 NOT_FORWARDED = {"source", "out", "jobs", "scheduler", "force", "command", "func", "debug"}
@@ -81,19 +82,44 @@ def run_batch(args, work: Callable, suffix: str) -> int:
             print(f"evstream: {r.source}: {r.error}", file=sys.stderr, flush=True)
         progress.update(done, total)
 
-    try:
-        results = batch.run_many(tasks, work, params, jobs=args.jobs, scheduler=args.scheduler, force=args.force,
-                                 on_result=on_result, warm=functools.partial(_warm, work, suffix, params))
-    finally:
-        progress.done()
+    results, signum = run_tasks(args, tasks, work, params, on_result, functools.partial(_warm, work, suffix, params),
+                                progress)
     failed = [r for r in results if r.status == "failed"]
     if args.json:
         print(json.dumps({"recordings": [r.as_dict() for r in results], "done": sum(r.status == "done" for r in
                                                                                    results),
-                          "skipped": sum(r.status == "skipped" for r in results), "failed": len(failed)}))
+                          "skipped": sum(r.status == "skipped" for r in results), "failed": len(failed),
+                          "interrupted": sum(r.status == "interrupted" for r in results)}))
     else:
         print(table(results))
-    return 1 if failed else 0
+    return interrupted(signum, results) or (1 if failed else 0)
+
+
+def run_tasks(args, tasks: list[batch.Task], work: Callable, params: dict, on_result, warm, progress):
+    """batch.run_many with the command's --jobs/--scheduler/--force, and SIGINT/SIGTERM caught from before the
+    cluster starts: a Ctrl-C at any moment stops the tasks (their outputs as after a one-file Ctrl-C).
+    Returns (results, the signal that stopped the run or None)."""
+    with StopOnSignal() as stop:
+        try:
+            results = batch.run_many(tasks, work, params, jobs=args.jobs, scheduler=args.scheduler, force=args.force,
+                                     on_result=on_result, warm=warm, stop=lambda: stop.signum)
+        finally:
+            progress.done()
+    return results, stop.signum
+
+
+def interrupted(signum: int | None, results: list[batch.TaskResult]) -> int:
+    """After a stop: one line saying what became of the unfinished recordings; 128 + the signal (else 0)."""
+    if signum is None:
+        return 0
+    stopped = [r for r in results if r.status == "interrupted"]
+    aside = [r.summary["mcap"] for r in stopped if r.summary.get("partial")]
+    note = (f"{len(stopped)} recording(s) not finished (nothing written at their outputs; a re-run does them)"
+            if stopped else "every recording had finished")
+    if aside:
+        note += f"; the archives so far set aside: {', '.join(aside)}"
+    print(f"evstream: interrupted by {signal.Signals(signum).name}; {note}", file=sys.stderr)
+    return 128 + int(signum)
 
 
 def _warm(work: Callable, suffix: str, params: dict) -> None:
@@ -122,11 +148,14 @@ def table(results: list[batch.TaskResult]) -> str:
     lines = ["  ".join(v.ljust(w) if i < 2 else v.rjust(w) for i, (v, w) in enumerate(zip(row, widths)))
              for row in rows]
     for r in results:
-        if r.status == "failed":
-            lines.append(f"failed: {r.source}: {r.error}")
+        if r.status == "failed" or (r.status == "interrupted" and r.error not in ("not started", "interrupted")
+                                    and not r.error.startswith("stopped by")):  # ones that left a file aside
+            lines.append(f"{r.status}: {r.source}: {r.error}")
     done = [r for r in results if r.status == "done"]
+    stopped = sum(r.status == "interrupted" for r in results)
     lines.append(f"{len(done)} done, {sum(r.status == 'skipped' for r in results)} skipped (up to date; --force "
-                 f"redoes them), {sum(r.status == 'failed' for r in results)} failed; "
+                 f"redoes them), {sum(r.status == 'failed' for r in results)} failed"
+                 + (f", {stopped} interrupted" if stopped else "") + "; "
                  f"{sum(r.events or 0 for r in done):,} events in {sum(r.seconds for r in done):.2f} task-seconds")
     return "\n".join(lines)
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from .. import api, batch, noise, synth
 from ..events import EventError, Geometry
 from ..safe_write import AtomicOutput
-from .batch import _warm, add_batch_flags, table
+from .batch import _warm, add_batch_flags, interrupted, run_tasks, table
 from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note, not_the_input
 
 DEFAULT_NOISE_RATIO = 0.5  # what `make recordings` and the README use
@@ -156,15 +156,14 @@ def _eval_many(args) -> int:
             print(f"evstream eval: {r.source}: {r.error}", file=sys.stderr, flush=True)
         progress.update(done, total)
 
-    try:
-        results = batch.run_many(tasks, eval_file, params, jobs=args.jobs, scheduler=args.scheduler,
-                                 force=args.force, on_result=on_result,  # each worker's kernels loaded once
-                                 warm=functools.partial(_warm, eval_file, EVAL_SUFFIX, {**params, "min_duration_s": 0}))
-    finally:
-        progress.done()
+    warm = functools.partial(_warm, eval_file, EVAL_SUFFIX, {**params, "min_duration_s": 0})  # kernels loaded once
+    results, signum = run_tasks(args, tasks, eval_file, params, on_result, warm, progress)
+    if signum is not None:  # a Ctrl-C: the tasks stopped (evstream.batch.run_many)
+        print(table(results))
+        return interrupted(signum, results)
     rows = []
     for r in results:
-        if r.status != "failed":
+        if r.status in ("done", "skipped"):
             got = json.loads(Path(r.out).read_text())
             if got["note"]:
                 print(f"evstream eval: skipping {r.source}: {got['note']}", file=sys.stderr)

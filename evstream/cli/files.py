@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from .. import api
+from ..batch import TaskStop
 from ..writers import convert
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
@@ -63,9 +64,10 @@ def cmd_convert(args) -> int:
 OUT_KINDS = (".npz", ".raw", ".h5", ".hdf5")
 
 
-def convert_one(args) -> dict:
+def convert_one(args, stop: TaskStop | None = None) -> dict:
     """Convert `args.source` to `args.out` (the one-file command without its printing): the flags checked,
-    then `evstream.convert`; its summary, with the folder made for OUT."""
+    then `evstream.convert`; its summary, with the folder made for OUT. `stop` (a batch task's): once
+    set, the conversion ends as after a Ctrl-C (TaskInterrupted; the temporary removed, OUT as it was)."""
     out = Path(args.out)
     if out.suffix.lower() not in OUT_KINDS:
         raise UsageError(f"{args.out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
@@ -75,6 +77,8 @@ def convert_one(args) -> dict:
     progress = Progress(quiet=args.quiet, desc="convert")
 
     def on_progress(events: int, fraction: float | None) -> None:
+        if stop is not None:
+            stop.check()
         if fraction is not None:
             progress.update(100 * fraction, 100, percent=True)
         else:
@@ -87,11 +91,11 @@ def convert_one(args) -> dict:
     return {**summary, "source": args.source, "created_folder": created or None}
 
 
-def convert_file(source: str, out: str, **flags) -> dict:
+def convert_file(source: str, out: str, stop: TaskStop | None = None, **flags) -> dict:
     """One task of a batch (on a Dask worker): convert `source` to `out` with the command's flags."""
     args = argparse.Namespace(**flags, source=source, out=out)
     args.quiet = True
-    return convert_one(args)
+    return convert_one(args, stop)
 
 
 def add_info_parser(sub) -> None:

@@ -7,7 +7,7 @@ import json
 import os
 from pathlib import Path
 
-from ..batch import GLOB_MAGIC
+from ..batch import GLOB_MAGIC, TaskStop
 from ..events import NoiseClass
 from ..framing import options as framer_options
 from ..framing.render import STYLES
@@ -28,8 +28,9 @@ from .common import (
 )
 
 
-def frames_one(args) -> list[dict]:
-    """The one-file command without its printing: one row of statistics per framer."""
+def frames_one(args, stop: TaskStop | None = None) -> list[dict]:
+    """The one-file command without its printing: one row of statistics per framer. `stop` (a batch
+    task's): once set, the run ends as after a Ctrl-C (TaskInterrupted; OUT as it was, OUT.part removed)."""
     try:
         kinds_ = framer_options.framer_kinds(args)
         framer_options.framers_from_args(args)  # validate every parameter before reading anything
@@ -43,7 +44,7 @@ def frames_one(args) -> list[dict]:
     staging = AtomicFolder(args.out, replaces=("frame_*.png", "frame_*.npz")) if args.out else None
     try:
         for kind in kinds_:
-            rows.append(_frame_with(kind, args, staging.part if staging else None, len(kinds_) > 1))
+            rows.append(_frame_with(kind, args, staging.part if staging else None, len(kinds_) > 1, stop))
     except BaseException:
         if staging is not None:
             staging.discard()
@@ -54,7 +55,7 @@ def frames_one(args) -> list[dict]:
     return rows
 
 
-def _frame_with(kind: str, args, staging: Path | None, several: bool) -> dict:
+def _frame_with(kind: str, args, staging: Path | None, several: bool, stop: TaskStop | None = None) -> dict:
     """One framer's run over the recording: its row of statistics; its files into `staging` (/KIND)."""
     from ..framing.arrays import ArrayWriter
     from ..framing.render import PngWriter
@@ -77,6 +78,8 @@ def _frame_with(kind: str, args, staging: Path | None, several: bool) -> dict:
     def on_batch(batch):
         fstats.add_frames(batch.frames)
         progress(batch)
+        if stop is not None:
+            stop.check()
 
     stats = pipeline.run(source, sinks, on_batch=on_batch)
     progress.done()
@@ -143,13 +146,13 @@ def add_parser(sub) -> None:
     p.set_defaults(func=cmd_frames)
 
 
-def frames_file(source: str, out: str, **flags) -> dict:
+def frames_file(source: str, out: str, stop: TaskStop | None = None, **flags) -> dict:
     """One task of a batch (on a Dask worker): `source`'s frames into OUT's folder (OUT without
     .frames.json), then its statistics into OUT, whole or not at all: OUT exists only once every frame
     was written, which is what makes a re-run skip the recording."""
     folder = out[: -len(SUMMARY_SUFFIX)]
     args = argparse.Namespace(**{**flags, "source": source, "out": folder, "quiet": True})
-    rows = frames_one(args)
+    rows = frames_one(args, stop)
     summary = {"source": source, "out": folder, "results": rows, "events_in": rows[0]["events_in"],
                "events_signal": rows[0]["events_signal"], "frames": sum(r["frames"] for r in rows)}
     with AtomicOutput(Path(out), [source]) as part:
