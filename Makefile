@@ -7,20 +7,27 @@ STAMP  := $(VENV)/.installed
 .PHONY: demo test bench lint recordings model mutation clean clean-cache aot
 
 # PYTHONWARNINGS: setuptools' "Editable installation" notice is information, not a warning about this project
-$(STAMP): pyproject.toml
+# Two rules (double colon, run in this order): the venv when pyproject.toml changed, then the kernels below
+# when a source file changed: every target that needs the venv (demo, bench, recordings, model, and
+# `make .venv/.installed` itself) also rebuilds stale kernels; when fresh, that is make's look at file times.
+$(STAMP):: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev]'
-	$(MAKE) --no-print-directory aot
+	$(BUILD_AOT)
 	touch $(STAMP)
+$(STAMP):: evstream/_aot.json
+	@touch $(STAMP)
 
 # The everyday commands' kernels compiled ahead of time for this machine (evstream/aot.py): they start without
-# numba. Rebuilt when any source file changed (an edit sets the old module aside: numba compiles instead).
+# numba. Rebuilt when any source file changed (an edit or a `git pull` sets the old module aside: numba
+# compiles instead, right but slower to start).
 # Not fatal: without a C compiler the kernels compile with numba at first use, as before.
 SOURCES := $(shell find evstream sources sinks -name '*.py' -not -path '*/__pycache__/*')
+BUILD_AOT = $(BIN)/python -m evstream.aot || echo "evstream.aot failed: numba will compile the kernels at first use"
 aot: evstream/_aot.json
 evstream/_aot.json: $(SOURCES) pyproject.toml
-	$(BIN)/python -m evstream.aot || echo "evstream.aot failed: numba will compile the kernels at first use"
+	$(BUILD_AOT)
 
 demo: $(STAMP)
 	$(BIN)/evstream replay recordings/turntable.npz --framer fw --save out/turntable.rrd
