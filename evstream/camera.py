@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .events import shown
+
 PINHOLE_MODELS = {"plumb_bob": (4, 5), "radtan": (4, 5), "radial-tangential": (4, 5), "rational_polynomial": (8,)}
 FISHEYE_MODELS = ("equidistant", "fisheye")
 MAX_STEPS = 100
@@ -44,7 +46,7 @@ class CameraModel:
         for name in ("fx", "fy", "cx", "cy"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not np.isfinite(v):
-                raise ValueError(f"camera: {name} must be a finite number, got {v!r}")
+                raise ValueError(f"camera: {name} must be a finite number, got {shown(v)}")
             object.__setattr__(self, name, float(v))
         if self.fx == 0 or self.fy == 0:
             raise ValueError("camera: fx and fy must not be 0")

@@ -14,6 +14,14 @@ import numpy as np
 
 from .jit import njit
 
+
+def shown(value) -> str:
+    """A value as an error message shows it: Python's repr, a NumPy scalar as its plain value (`nan`, `0`;
+    not NumPy 2's `np.float64(nan)`, which reads as code, not as what was given)."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    return repr(value)
+
 __all__ = [
     "EVENT_DTYPE",
     "EventChunk",
@@ -57,7 +65,7 @@ class Geometry:
         for name in ("width", "height"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or not 0 < int(v) <= 65535:
-                raise ValueError(f"Geometry.{name} must be an integer in 1..65535, got {v!r}")
+                raise ValueError(f"Geometry.{name} must be an integer in 1..65535, got {shown(v)}")
             object.__setattr__(self, name, int(v))
 
     @property

@@ -285,3 +285,22 @@ def test_convert_and_archive_refuse_a_recording_the_script_has_open(tmp_path):
         evstream.archive(tmp_path / "b.npz", mcap)
     assert (raw.read_bytes(), mcap.read_bytes()) == before and len(sources) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap", "a.raw", "b.npz"]
+
+
+@pytest.mark.parametrize("bad", [np.float64("nan"), np.int64(-7), np.float32(-0.5)], ids=["nan", "neg-int", "neg-f32"])
+def test_a_bad_value_is_said_as_a_plain_value_not_as_numpy_code(bad):
+    """Every stage and framer of the catalogue, every numeric parameter given a NumPy scalar it refuses:
+    the message shows the value (`got nan`), not NumPy 2's repr (`np.float64(nan)`)."""
+    said = 0
+    for entry in evstream.catalogue():
+        make = evstream.stage if entry["role"] == "stage" else evstream.framer
+        for param in entry["parameters"]:
+            if param["type"] not in ("int", "float"):
+                continue
+            try:
+                make(entry["kind"], **{param["name"]: bad})
+            except (ValueError, TypeError, evstream.EventError) as e:
+                text = str(e)
+                assert "np." not in text and "numpy" not in text, (entry["kind"], param["name"], text)
+                said += "got " in text
+    assert said >= 10  # the check ran on messages that show the value

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..events import shown
 from .common import UsageError, not_the_input
 from .evaluate import read_recordings
 
@@ -17,9 +18,9 @@ def _fractions(text: str) -> tuple[float, ...]:
     try:
         fracs = tuple(float(f) for f in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected fractions like 0.3,0.1, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected fractions like 0.3,0.1, got {shown(text)}") from None
     if not all(0 < f < 1 for f in fracs):
-        raise argparse.ArgumentTypeError(f"fractions must be in (0, 1), got {text!r}")
+        raise argparse.ArgumentTypeError(f"fractions must be in (0, 1), got {shown(text)}")
     return fracs
 
 

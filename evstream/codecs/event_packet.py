@@ -24,7 +24,7 @@ import functools
 import struct
 from dataclasses import dataclass
 
-from ..events import EventError
+from ..events import EventError, shown
 
 __all__ = ["DATATYPE", "HEADER_MSGDEFS", "MAX_PACKET_BYTES", "MSGDEF", "EventPacket", "PacketError", "decode_packet",
            "encode_packet"]
@@ -88,7 +88,7 @@ class EventPacket:
 def _check_uint(name: str, value, bits: int) -> int:
     v = int(value)
     if not 0 <= v < (1 << bits):
-        raise PacketError(f"EventPacket.{name} = {value!r} does not fit uint{bits}")
+        raise PacketError(f"EventPacket.{name} = {shown(value)} does not fit uint{bits}")
     return v
 
 

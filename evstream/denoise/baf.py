@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk, NoiseClass
+from ..events import EventChunk, NoiseClass, shown
 from ..jit import njit
 from ..nowrap import ix
 from ..pipeline import register
@@ -64,7 +64,7 @@ class BackgroundActivityFilter(ScoredClassifier):
 
     def __post_init__(self):
         check(is_int(self.tau_us) and self.tau_us > 0, "baf", f"tau_us must be a positive integer, got "
-                                                              f"{self.tau_us!r}")
+                                                              f"{shown(self.tau_us)}")
         self.tau_us = int(self.tau_us)
         self._last = None
 

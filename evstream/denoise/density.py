@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..events import EventChunk, NoiseClass
+from ..events import EventChunk, NoiseClass, shown
 from ..jit import bind, njit
 from ..nowrap import ix
 from ..pipeline import register
@@ -196,12 +196,12 @@ class DensityFilter(InPlaceClassifier):
     def __post_init__(self):
         if not is_int(self.radius_px) or not 0 <= self.radius_px <= MAX_RADIUS_PX:
             raise ValueError(f"radius_px must be an integer in 0..{MAX_RADIUS_PX} (L = 2r + 1 is odd), got "
-                             f"{self.radius_px!r}")
+                             f"{shown(self.radius_px)}")
         if not is_int(self.window_us) or self.window_us <= 0:
-            raise ValueError(f"window_us must be a positive whole number of µs, got {self.window_us!r}")
+            raise ValueError(f"window_us must be a positive whole number of µs, got {shown(self.window_us)}")
         self.radius_px, self.window_us = int(self.radius_px), int(self.window_us)
         if self.mode not in ("relative", "absolute"):
-            raise ValueError(f"mode must be 'relative' or 'absolute', got {self.mode!r}")
+            raise ValueError(f"mode must be 'relative' or 'absolute', got {shown(self.mode)}")
         if not self.density_hz >= 0 or not math.isfinite(self.density_hz):
             raise ValueError(f"density_hz must be a finite number >= 0, got {self.density_hz}")
         if not self.rho_rel >= 0 or not math.isfinite(self.rho_rel):

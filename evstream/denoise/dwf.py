@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk
+from ..events import EventChunk, shown
 from ..jit import njit
 from ..pipeline import register
 from .common import NO_SCORE, ScoredClassifier, check, is_int
@@ -72,11 +72,11 @@ class DoubleWindowFilter(ScoredClassifier):
 
     def __post_init__(self):
         check(is_int(self.window_events) and 1 <= self.window_events <= 1_000_000, "dwf",
-              f"window_events must be an integer in 1..1000000, got {self.window_events!r}")
+              f"window_events must be an integer in 1..1000000, got {shown(self.window_events)}")
         check(is_int(self.radius_px) and self.radius_px >= 0, "dwf",
-              f"radius_px must be a non-negative integer, got {self.radius_px!r}")
+              f"radius_px must be a non-negative integer, got {shown(self.radius_px)}")
         check(is_int(self.k) and 1 <= self.k <= 2 * self.window_events, "dwf",
-              f"k must be an integer in 1..2*window_events, got {self.k!r}")
+              f"k must be an integer in 1..2*window_events, got {shown(self.k)}")
         self.window_events, self.radius_px, self.k = int(self.window_events), int(self.radius_px), int(self.k)
         self._win_x = np.zeros((2, self.window_events), np.uint16)
         self._win_y = np.zeros((2, self.window_events), np.uint16)

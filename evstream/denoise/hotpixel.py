@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk, NoiseClass
+from ..events import EventChunk, NoiseClass, shown
 from ..jit import njit
 from ..pipeline import register
 from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
@@ -67,9 +67,9 @@ class HotPixelLearner(ScoredClassifier):
 
     def __post_init__(self):
         check(is_int(self.window_us) and self.window_us > 0, "hotpixel",
-              f"window_us must be a positive integer, got {self.window_us!r}")
+              f"window_us must be a positive integer, got {shown(self.window_us)}")
         check(isinstance(self.rate_hz, (int, float)) and not isinstance(self.rate_hz, bool)
-              and self.rate_hz > 0, "hotpixel", f"rate_hz must be a positive number, got {self.rate_hz!r}")
+              and self.rate_hz > 0, "hotpixel", f"rate_hz must be a positive number, got {shown(self.rate_hz)}")
         self.window_us, self.rate_hz = int(self.window_us), float(self.rate_hz)
         # rate >= rate_hz  <=>  count >= rate_hz * window_s (counts are integers)
         self._min_count = max(1, int(np.ceil(self.rate_hz * self.window_us * 1e-6 - 1e-9)))

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk
+from ..events import EventChunk, shown
 from ..jit import njit
 from ..pipeline import register
 from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
@@ -76,8 +76,8 @@ class KhodamoradiFilter(ScoredClassifier):
 
     def __post_init__(self):
         check(is_int(self.tau_us) and self.tau_us > 0, "khodamoradi",
-              f"tau_us must be a positive integer, got {self.tau_us!r}")
-        check(is_int(self.k) and 1 <= self.k <= 6, "khodamoradi", f"k must be an integer in 1..6, got {self.k!r}")
+              f"tau_us must be a positive integer, got {shown(self.tau_us)}")
+        check(is_int(self.k) and 1 <= self.k <= 6, "khodamoradi", f"k must be an integer in 1..6, got {shown(self.k)}")
         check(isinstance(self.polarity_match, (bool, np.bool_)), "khodamoradi", "polarity_match must be a bool")
         self.tau_us, self.k, self.polarity_match = int(self.tau_us), int(self.k), bool(self.polarity_match)
         self._cols = self._rows = None

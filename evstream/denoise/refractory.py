@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk, NoiseClass
+from ..events import EventChunk, NoiseClass, shown
 from ..jit import njit
 from ..pipeline import register
 from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
@@ -52,7 +52,7 @@ class RefractoryFilter(ScoredClassifier):
 
     def __post_init__(self):
         check(is_int(self.refractory_us) and self.refractory_us > 0, "refractory",
-              f"refractory_us must be a positive integer, got {self.refractory_us!r}")
+              f"refractory_us must be a positive integer, got {shown(self.refractory_us)}")
         self.refractory_us = int(self.refractory_us)
         self._last = None
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk
+from ..events import EventChunk, shown
 from ..jit import njit
 from ..pipeline import register
 from .common import NEVER_US, ScoredClassifier, check, is_int
@@ -83,12 +83,12 @@ class SpatioTemporalCorrelationFilter(ScoredClassifier):
 
     def __post_init__(self):
         check(is_int(self.tau_us) and self.tau_us > 0, "stcf", f"tau_us must be a positive integer, "
-                                                               f"got {self.tau_us!r}")
+                                                               f"got {shown(self.tau_us)}")
         check(is_int(self.radius_px) and 1 <= self.radius_px <= 8, "stcf",
-              f"radius_px must be an integer in 1..8, got {self.radius_px!r}")
+              f"radius_px must be an integer in 1..8, got {shown(self.radius_px)}")
         n_nb = (2 * int(self.radius_px) + 1) ** 2 - 1
         check(is_int(self.k) and 1 <= self.k <= n_nb, "stcf",
-              f"k must be an integer in 1..{n_nb} (neighbours of radius {self.radius_px}), got {self.k!r}")
+              f"k must be an integer in 1..{n_nb} (neighbours of radius {self.radius_px}), got {shown(self.k)}")
         check(isinstance(self.polarity_match, (bool, np.bool_)), "stcf", "polarity_match must be a bool")
         self.tau_us, self.k, self.radius_px = int(self.tau_us), int(self.k), int(self.radius_px)
         self.polarity_match = bool(self.polarity_match)

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..events import EventChunk, NoiseClass
+from ..events import EventChunk, NoiseClass, shown
 from ..jit import bind, njit
 from ..nowrap import ix
 from ..pipeline import register
@@ -185,13 +185,13 @@ class TimeSeriesFilter(InPlaceClassifier):
         if not (self.rate_hz > 0 and math.isfinite(self.rate_hz)) or 1e6 / self.rate_hz != int(1e6 / self.rate_hz):
             raise ValueError(f"rate_hz must divide 1 MHz (bins of whole µs), got {self.rate_hz}")
         if not is_int(self.n_bins) or not 1 <= self.n_bins <= 255:
-            raise ValueError(f"n_bins must be an integer in 1..255 (a uint8 count per pixel), got {self.n_bins!r}")
+            raise ValueError(f"n_bins must be an integer in 1..255 (a uint8 count per pixel), got {shown(self.n_bins)}")
         if self.form not in ("difference", "ratio"):
-            raise ValueError(f"form must be 'difference' or 'ratio', got {self.form!r}")
+            raise ValueError(f"form must be 'difference' or 'ratio', got {shown(self.form)}")
         if not math.isfinite(self.lam) or (self.form == "difference" and not 0 <= self.lam < 1) or self.lam < 0:
             raise ValueError(f"lam must be in [0, 1) for the difference form, >= 0 for ratio; got {self.lam}")
         if not is_int(self.radius_px) or not 1 <= self.radius_px <= MAX_RADIUS_PX:
-            raise ValueError(f"radius_px must be an integer in 1..{MAX_RADIUS_PX}, got {self.radius_px!r}")
+            raise ValueError(f"radius_px must be an integer in 1..{MAX_RADIUS_PX}, got {shown(self.radius_px)}")
         if (2 * self.radius_px + 1) * self.n_bins > 65535:
             raise ValueError(f"(2 radius_px + 1) · n_bins must fit the uint16 row sums: radius_px {self.radius_px}, "
                              f"n_bins {self.n_bins}")

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk, NoiseClass
+from ..events import EventChunk, NoiseClass, shown
 from ..jit import njit
 from ..pipeline import register
 from .common import NEVER_US, NO_SCORE, ScoredClassifier, check, is_int
@@ -106,7 +106,7 @@ class YNoiseFilter(ScoredClassifier):
         def positive_int(name, hi=None):
             v = getattr(self, name)
             ok = is_int(v) and v >= 1 and (hi is None or v <= hi)
-            check(ok, "ynoise", f"{name} must be an integer in 1..{hi or 'inf'}, got {v!r}")
+            check(ok, "ynoise", f"{name} must be an integer in 1..{hi or 'inf'}, got {shown(v)}")
             setattr(self, name, int(v))
 
         positive_int("window_us")
@@ -117,7 +117,7 @@ class YNoiseFilter(ScoredClassifier):
         positive_int("hot_min_events", self.count_cap)
         check(isinstance(self.polarity_match, (bool, np.bool_)), "ynoise", "polarity_match must be a bool")
         check(isinstance(self.hot_ratio, (int, float)) and 0 < self.hot_ratio <= 1, "ynoise",
-              f"hot_ratio must be in (0, 1], got {self.hot_ratio!r}")
+              f"hot_ratio must be in (0, 1], got {shown(self.hot_ratio)}")
         self.polarity_match, self.hot_ratio = bool(self.polarity_match), float(self.hot_ratio)
         self._last = self._last_p = self._ring = self._head = None
 

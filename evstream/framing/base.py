@@ -16,7 +16,7 @@ import dataclasses
 
 import numpy as np
 
-from ..events import EventChunk, EventError, Frame, Geometry
+from ..events import EventChunk, EventError, Frame, Geometry, shown
 
 # Per-pixel counts saturate at 65535 (a 2 kHz hot pixel reaches it after 33 s in one frame); uint16
 # halves the memory traffic of dense frames, which dominates at ordinary event rates. `n_events` is exact.
@@ -66,7 +66,7 @@ class FramerBase:
         if hasattr(self, "max_empty_frames"):
             _check_int(self, "max_empty_frames", 0)
         if not isinstance(self.all_events, (bool, np.bool_)):
-            raise ValueError(f"{self.kind}: all_events must be true or false, got {self.all_events!r}")
+            raise ValueError(f"{self.kind}: all_events must be true or false, got {shown(self.all_events)}")
 
     # -- state --------------------------------------------------------------------------------------
     def _reset(self) -> None:
@@ -127,7 +127,7 @@ def _check_int(obj, name: str, low: int) -> None:
     if isinstance(v, float) and v.is_integer():
         v = int(v)
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < low:
-        raise ValueError(f"{obj.kind}: {name} must be an integer >= {low}, got {v!r}")
+        raise ValueError(f"{obj.kind}: {name} must be an integer >= {low}, got {shown(v)}")
     setattr(obj, name, int(v))
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk, Frame
+from ..events import EventChunk, Frame, shown
 from ..jit import njit
 from ..nowrap import ix
 from ..pipeline import register
@@ -258,7 +258,7 @@ class AdaptiveOverlap(SlidingFramer):
         check_nonnegative_int(self, "overlap_init_us")
         k = self.k_us_per_event
         if isinstance(k, bool) or not isinstance(k, (int, float, np.number)) or not np.isfinite(k) or k < 0:
-            raise ValueError(f"adaptive: k_us_per_event must be a finite number >= 0, got {k!r}")
+            raise ValueError(f"adaptive: k_us_per_event must be a finite number >= 0, got {shown(k)}")
         self.k_us_per_event = float(k)
         if self.overlap_max_us >= self.window_us:
             raise ValueError(f"adaptive: overlap_max_us ({self.overlap_max_us}) must be less than "

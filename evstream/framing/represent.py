@@ -38,7 +38,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..events import EventChunk, Frame
+from ..events import EventChunk, Frame, shown
 from ..jit import njit
 from ..nowrap import ix
 from ..pipeline import build, register
@@ -333,7 +333,7 @@ class RepresentationFramer(FramerBase):
     # -- construction --------------------------------------------------------------------------
     def _window_spec(self) -> dict:
         if self.window not in WINDOWS:
-            raise ValueError(f"{self.kind}: window must be one of {', '.join(WINDOWS)}, got {self.window!r}")
+            raise ValueError(f"{self.kind}: window must be one of {', '.join(WINDOWS)}, got {shown(self.window)}")
         spec = {"kind": self.window, "all_events": self.all_events}
         given = {name: getattr(self, name) for name in WINDOW_PARAMS if getattr(self, name) is not None}
         accepted = {f.name for f in dataclasses.fields(build("framer", {"kind": self.window}))}
@@ -345,7 +345,7 @@ class RepresentationFramer(FramerBase):
 
     def _setup(self) -> None:
         if not isinstance(self.all_events, (bool, np.bool_)):
-            raise ValueError(f"{self.kind}: all_events must be true or false, got {self.all_events!r}")
+            raise ValueError(f"{self.kind}: all_events must be true or false, got {shown(self.all_events)}")
         self._spec = self._window_spec()
         build("framer", self._spec)  # check the window's parameters now, not at the first event
         self._reset()
@@ -645,7 +645,7 @@ class TimeSurface(RepresentationFramer):
     def __post_init__(self):
         tau = self.tau_us
         if isinstance(tau, bool) or not isinstance(tau, (int, float, np.number)) or not 0 < tau <= MAX_TAU_US:
-            raise ValueError(f"timesurface: tau_us must be a number in (0, 2^40] µs, got {tau!r}")
+            raise ValueError(f"timesurface: tau_us must be a number in (0, 2^40] µs, got {shown(tau)}")
         self.tau_us = float(tau)
         self._setup()
 

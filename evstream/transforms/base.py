@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 
-from ..events import EventChunk, Geometry
+from ..events import EventChunk, Geometry, shown
 from ..jit import njit
 
 
@@ -46,7 +46,7 @@ def check_int(kind: str, name: str, v, low: int) -> int:
     if isinstance(v, float) and v.is_integer():
         v = int(v)
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < low:
-        raise ValueError(f"{kind}: {name} must be an integer >= {low}, got {v!r}")
+        raise ValueError(f"{kind}: {name} must be an integer >= {low}, got {shown(v)}")
     return int(v)
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..events import EventChunk, Geometry
+from ..events import EventChunk, Geometry, shown
 from ..jit import njit
 from ..pipeline import register
 from .base import Transform, check_int
@@ -88,7 +88,7 @@ class Flip(Transform):
 
     def __post_init__(self):
         if self.axis not in ("x", "y"):
-            raise ValueError(f"flip: axis must be 'x' or 'y', got {self.axis!r}")
+            raise ValueError(f"flip: axis must be 'x' or 'y', got {shown(self.axis)}")
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
         g = chunk.geometry
@@ -107,7 +107,7 @@ class Rotate(Transform):
 
     def __post_init__(self):
         if isinstance(self.degrees, bool) or self.degrees not in (90, 180, 270):
-            raise ValueError(f"rotate: degrees must be 90, 180 or 270, got {self.degrees!r}")
+            raise ValueError(f"rotate: degrees must be 90, 180 or 270, got {shown(self.degrees)}")
         self.degrees = int(self.degrees)
 
     def out_geometry(self, geometry: Geometry) -> Geometry:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..events import EventChunk
+from ..events import EventChunk, shown
 from ..jit import njit
 from ..pipeline import register
 from .base import Transform, select, select_flagged
@@ -34,7 +34,7 @@ class Polarity(Transform):
 
     def __post_init__(self):
         if self.keep not in ("on", "off"):
-            raise ValueError(f"polarity: keep must be 'on' or 'off', got {self.keep!r}")
+            raise ValueError(f"polarity: keep must be 'on' or 'off', got {shown(self.keep)}")
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
         return select_flagged(chunk, chunk.p if self.keep == "on" else chunk.p ^ np.uint8(1))
@@ -56,7 +56,7 @@ class TimeRange(Transform):
                 if isinstance(v, float) and v.is_integer():
                     v = int(v)
                 if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-                    raise ValueError(f"time_range: {name} must be a whole number of µs, got {v!r}")
+                    raise ValueError(f"time_range: {name} must be a whole number of µs, got {shown(v)}")
                 setattr(self, name, int(v))
         if self.start_us is not None and self.end_us is not None and self.end_us <= self.start_us:
             raise ValueError(f"time_range: end_us ({self.end_us}) must be after start_us ({self.start_us})")
@@ -111,13 +111,13 @@ class RateLimit(Transform):
     def __post_init__(self):
         r = self.rate_hz
         if isinstance(r, bool) or not isinstance(r, (int, float, np.number)) or not math.isfinite(r) or r < 1:
-            raise ValueError(f"rate_limit: rate_hz must be a finite number >= 1 event/s, got {r!r}")
+            raise ValueError(f"rate_limit: rate_hz must be a finite number >= 1 event/s, got {shown(r)}")
         self.rate_hz = r
         if self.burst_events is None:
             self.burst_events = max(1, round(r * 0.01))
         b = self.burst_events
         if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1:
-            raise ValueError(f"rate_limit: burst_events must be an integer >= 1, got {b!r}")
+            raise ValueError(f"rate_limit: burst_events must be an integer >= 1, got {shown(b)}")
         self.burst_events = int(b)
         self._rate_units = round(r)  # units of 1/UNIT event per µs: events/s, to the nearest whole
         self._capacity = self.burst_events * UNIT

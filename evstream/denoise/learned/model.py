@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...events import shown
 from .features import FEATURE_VERSION, FEATURES, N_FEATURES
 
 DEFAULT_MODEL = Path(__file__).with_name("default_model.npz")
@@ -57,7 +58,7 @@ class Model:
         """The score threshold expected to keep the fraction `keep` of the signal (interpolated)."""
         k = self.keep if keep is None else float(keep)
         if not 0 < k <= 1:
-            raise ValueError(f"keep must be in (0, 1], got {keep!r}")
+            raise ValueError(f"keep must be in (0, 1], got {shown(keep)}")
         order = np.argsort(self.keep_grid)
         return float(np.interp(k, self.keep_grid[order], self.threshold_grid[order]))
 

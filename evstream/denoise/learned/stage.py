@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...events import EventChunk, NoiseClass
+from ...events import EventChunk, NoiseClass, shown
 from ...pipeline import register
 from ..base import InPlaceClassifier, grow_fifo
 from .features import AGE_LOG1P_MS, HISTORY_US, LOG1P, N_BINS, N_FEATURES, feature_kernel, new_state
@@ -38,11 +38,11 @@ class LearnedFilter(InPlaceClassifier):
     def __post_init__(self):
         m = self.model if isinstance(self.model, Model) else load(self.model)
         if self.keep is not None and not (isinstance(self.keep, (int, float)) and 0 < self.keep <= 1):
-            raise ValueError(f"learned: keep must be a fraction in (0, 1], got {self.keep!r}")
+            raise ValueError(f"learned: keep must be a fraction in (0, 1], got {shown(self.keep)}")
         if not isinstance(self.hot_min, int) or self.hot_min < 1:
-            raise ValueError(f"learned: hot_min must be a positive integer, got {self.hot_min!r}")
+            raise ValueError(f"learned: hot_min must be a positive integer, got {shown(self.hot_min)}")
         if not (isinstance(self.dc_lam, (int, float)) and 0 <= self.dc_lam <= 1):
-            raise ValueError(f"learned: dc_lam must be in [0, 1] (1: no DC rule), got {self.dc_lam!r}")
+            raise ValueError(f"learned: dc_lam must be in [0, 1] (1: no DC rule), got {shown(self.dc_lam)}")
         self._dc_margin = math.floor(self.dc_lam * 8 * N_BINS)
         self._model = m
         self._weights = m.folded()

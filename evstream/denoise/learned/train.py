@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...events import EventChunk, NoiseClass
+from ...events import EventChunk, NoiseClass, shown
 from ...noise import Condition, NoiseSpec, as_signal, inject
 from .features import FEATURE_VERSION, FEATURES, HISTORY_US, HOT_SCORE, N_FEATURES
 from .model import Model
@@ -200,7 +200,7 @@ def _fit(S: Samples, kind: str, hidden: int, seed: int) -> Model:
     elif kind == "mlp":
         w1, b1, w2, b2 = fit_mlp(Z, S.y, hidden, seed=seed)
     else:
-        raise ValueError(f"model kind must be 'logistic' or 'mlp', got {kind!r}")
+        raise ValueError(f"model kind must be 'logistic' or 'mlp', got {shown(kind)}")
     # float32 precision on disk and in use: the same bytes on every machine that fits the same numbers
     f32 = lambda a: np.asarray(a, np.float32).astype(np.float64)  # noqa: E731
     return Model(w1=f32(w1), b1=f32(b1), w2=f32(w2), b2=float(np.float32(b2)), mean=f32(mean), std=f32(std),
