@@ -508,6 +508,7 @@ class McapSink:
         try:
             self._finish(stats)
         except BaseException as e:
+            self._output.keep_partial = self._holds_something()
             raised = self._output.failed(e)
             if raised is not e:
                 raise raised from None
@@ -541,9 +542,15 @@ class McapSink:
                 self._finish(stats)
         except Exception:  # the disk, most likely: the partial file is what it is
             pass
+        self._output.keep_partial = self._holds_something()  # an archive of nothing is not kept
         raised = self._output.failed(error)
         if raised is not error:
             raise raised from None
+
+    def _holds_something(self) -> bool:
+        """Whether the file holds an event packet or a frame: a failed run's archive is kept only then
+        (one that failed at the input's first bytes leaves no OUT.mcap.N.part behind)."""
+        return bool(self.packets or self.frames_written)
 
     def _finish(self, stats: RunStats | None) -> None:
         try:

@@ -82,6 +82,25 @@ def corrupt_midway(src: Path, dst: Path) -> Path:
     return dst
 
 
+def test_an_archive_that_failed_before_its_first_packet_leaves_no_part_file(tmp_path, capsys):
+    """A damaged input failing at its first event kept `OUT.mcap.part` (an MCAP of nothing), one more
+    `OUT.mcap.N.part` per run; it is kept only when it holds an event packet or a frame."""
+    s = events_of(SHIPPED)
+    x = s.x.copy()
+    x[0] = 60000
+    bad = tmp_path / "bad.npz"
+    native.save(bad, s.replace(x=x))
+    out = tmp_path / "old.mcap"
+    out.write_bytes(b"the user's older file")
+    for _ in range(2):
+        rc, _, err = run(["archive", bad, out], capsys)
+        assert rc == 1
+        line = one_line_error(err)
+        assert "bad.npz" in line and "outside" in line and ".part" not in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz", "old.mcap"]
+    assert out.read_bytes() == b"the user's older file"
+
+
 @pytest.mark.parametrize("command", ["archive", "convert.npz", "convert.raw", "convert.h5", "replay"])
 def test_a_failed_run_leaves_the_old_output_as_it_was(tmp_path, capsys, command):
     """`archive BAD.raw old.mcap` turned a valid old.mcap into 2 KB with no events."""
