@@ -1,6 +1,7 @@
 """Ctrl-C in a many-recording run on a real local Dask cluster (evstream.batch): the `evstream` command in
-a process group of its own, sent a real SIGINT the way a terminal sends it (to the whole group, workers
-too) at several moments: while it loads, while the cluster's workers spawn, while tasks write. Each time:
+a process group of its own, sent a real SIGINT at several moments: while it loads and while tasks write
+the way a terminal sends it (to the whole group, workers too), while the cluster's workers spawn to the
+command alone (`kill -INT`). Each time:
 exit 130, no traceback or Dask log on stderr, no temporary left, an older output untouched. And from
 Python: run_many's `stop`, and a task that never polls it (interrupted where it is)."""
 
@@ -75,7 +76,10 @@ def run_and_interrupt(argv, moment, out: Path):
         else:  # a task's temporary is there: it is writing
             reached = wait_for(lambda: bool(temporaries(out)), proc)
         assert reached, f"the run ended before the moment '{moment}'"
-        os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole foreground group
+        if moment == "spawning":  # `kill -INT PID` (ignored in 3 of 3 runs before): a worker's Python, just
+            os.kill(proc.pid, signal.SIGINT)  # exec'd, would print its own KeyboardInterrupt (docs/scale.md)
+        else:
+            os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole foreground group
         stdout, stderr = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
