@@ -7,17 +7,17 @@ STAMP  := $(VENV)/.installed
 .PHONY: demo test bench lint recordings model mutation clean clean-cache aot
 
 # PYTHONWARNINGS: setuptools' "Editable installation" notice is information, not a warning about this project
-# Two rules (double colon, run in this order): the venv when pyproject.toml changed, then the kernels below
-# when a source file changed: every target that needs the venv (demo, bench, recordings, model, and
-# `make .venv/.installed` itself) also rebuilds stale kernels; when fresh, that is make's look at file times.
-$(STAMP):: pyproject.toml
+# $(PIP): the venv, installed when pyproject.toml changed. $(STAMP): that, and the kernels below fresh:
+# every target that runs the commands (demo, test, bench, recordings, model, and `make .venv/.installed`
+# itself) rebuilds stale kernels; when fresh, that is make's look at file times. `lint` needs only $(PIP).
+PIP := $(VENV)/.pip
+$(PIP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev]'
-	$(BUILD_AOT)
+	touch $(PIP)
+$(STAMP): $(PIP) evstream/_aot.json
 	touch $(STAMP)
-$(STAMP):: evstream/_aot.json
-	@touch $(STAMP)
 
 # The everyday commands' kernels compiled ahead of time for this machine (evstream/aot.py): they start without
 # numba. Rebuilt when any source file changed (an edit or a `git pull` sets the old module aside: numba
@@ -26,7 +26,7 @@ $(STAMP):: evstream/_aot.json
 SOURCES := $(shell find evstream sources sinks -name '*.py' -not -path '*/__pycache__/*')
 BUILD_AOT = $(BIN)/python -m evstream.aot || echo "evstream.aot failed: numba will compile the kernels at first use"
 aot: evstream/_aot.json
-evstream/_aot.json: $(SOURCES) pyproject.toml
+evstream/_aot.json: $(SOURCES) pyproject.toml | $(PIP)
 	$(BUILD_AOT)
 
 demo: $(STAMP)
@@ -51,7 +51,7 @@ mutation: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks
 
-lint: $(STAMP)
+lint: $(PIP)
 	$(BIN)/ruff check evstream sources sinks tests benchmarks examples
 
 # The shipped synthetic recordings (deterministic: same seeds, same files).

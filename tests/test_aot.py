@@ -240,8 +240,8 @@ def test_only_nogil_kernels_are_compiled_ahead_of_time():
 def test_every_make_target_a_user_types_rebuilds_stale_kernels_and_only_then(tmp_path):
     """The Makefile's rules, on a copy of the tree's shape with set file times (`make -n`: what it would
     run): after a `git pull` (a source newer than the module's index) `make demo` and `make
-    .venv/.installed` rebuild the module once; when it is fresh they do not; pyproject.toml newer: the
-    venv's install (which builds it) and no second build."""
+    .venv/.installed` rebuild the module once; when it is fresh they do not, nor does `make lint` when
+    it is stale; pyproject.toml newer: the venv's install, then the build."""
     import shutil
 
     if shutil.which("make") is None:
@@ -249,7 +249,7 @@ def test_every_make_target_a_user_types_rebuilds_stale_kernels_and_only_then(tmp
     root = Path(__file__).resolve().parents[1]
     shutil.copy(root / "Makefile", tmp_path / "Makefile")
     for name in ("evstream/events.py", "sources/a.py", "sinks/b.py", "pyproject.toml", ".venv/bin/python",
-                 ".venv/.installed", "evstream/_aot.json"):
+                 ".venv/.pip", ".venv/.installed", "evstream/_aot.json"):
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text("")
 
@@ -261,13 +261,16 @@ def test_every_make_target_a_user_types_rebuilds_stale_kernels_and_only_then(tmp
 
     for name in ("evstream/events.py", "sources/a.py", "sinks/b.py", "pyproject.toml"):
         at(name, 1_000)
+    at(".venv/.pip", 1_500)
     at("evstream/_aot.json", 2_000)
     at(".venv/.installed", 3_000)
     for target in ("demo", ".venv/.installed"):
         assert "evstream.aot" not in would_run(target)  # fresh: nothing to do
     at("sources/a.py", 4_000)  # a pull changed a source
-    for target in ("demo", ".venv/.installed", "bench", "recordings"):
+    for target in ("demo", ".venv/.installed", "bench", "recordings", "test"):
         assert would_run(target).count("-m evstream.aot") == 1, target
+    assert "evstream.aot" not in would_run("lint")
     at("pyproject.toml", 5_000)
     out = would_run("demo")
     assert "pip install" in out and out.index("pip install") < out.index("-m evstream.aot")
+    assert out.count("-m evstream.aot") == 1
