@@ -65,8 +65,9 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
         caller grows it and calls again from there).
 
         `hsum` is a row-summed count map (`rowsum`) of the FIFO's events: one plane, or one per
-        polarity with `match_polarity`. The FIFO holds each event's time, map position (`fifo_pos`) and
-        column and row (`fifo_x`; `fifo_y` plus the plane times `height + 2r + 1` with `match_polarity`);
+        polarity with `match_polarity`. The FIFO holds each event's time and its map position
+        (`fifo_pos`, `far`) or column and row (`fifo_x`; `fifo_y` plus `height + 2r + 1` on the ON plane
+        with `match_polarity`);
         `fifo_state` = [head, size]; `per_pol` counts the FIFO's events per plane.
 
         Expiry by groups of G (not `far`): the head advances G entries at a time, once the G-th is
@@ -113,10 +114,13 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                         size -= 1
                 while not far and size >= G and fifo_t[ix(head + G - 1)] <= oldest:  # the head group is out
                     for k in range(G):
-                        pos = fifo_pos[ix(head + k)]
+                        yk = np.intp(fifo_y[ix(head + k)])
+                        pos = yk * padded_width + np.intp(fifo_x[ix(head + k)]) + radius * padded_width
+                        if match_polarity:  # the ON plane's rows are offset by y_plane in fifo_y
+                            on = np.intp(yk >= y_plane)
+                            pos += on * (plane - y_plane * padded_width)
+                            per_pol[on] -= 1
                         row_add(hsum, pos, -1, L)
-                        if match_polarity:
-                            per_pol[np.intp(fifo_y[ix(head + k)] >= y_plane)] -= 1
                     head = (head + G) & mask
                     size -= G
                 xi = np.intp(x[ix(i)])
@@ -156,8 +160,9 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                 row_add(hsum, pos, 1, L)
                 slot = ix((head + size) & mask)
                 fifo_t[slot] = ti
-                fifo_pos[slot] = pos
-                if not far:
+                if far:
+                    fifo_pos[slot] = pos
+                else:  # the position follows from the column and row
                     fifo_x[slot] = xi
                     fifo_y[slot] = yq
                 if match_polarity:
@@ -219,15 +224,17 @@ class DensityFilter(InPlaceClassifier):
         cap = 1 << 12
         hsum = padded_map(g.width, g.height, r, np.int32, planes=2 if self.match_polarity else 1)
         far = hsum.nbytes > FAR_BYTES
-        group = 0 if far else cap  # the group expiry's columns and rows (not `far`)
+        group = 0 if far else cap  # the group expiry keeps columns and rows (not `far`), not positions
+        rows = 2 * (g.height + 2 * r + 1)  # fifo_y's range with match_polarity
+        xy = np.uint16 if max(g.width, rows) <= 2**16 else np.int32  # 4 bytes per entry less (L2 cache)
         return {
             "geometry": g,
             "far": far,
             "hsum": hsum,
             "fifo_t": np.zeros(cap, np.int64),
-            "fifo_pos": np.zeros(cap, np.int32 if len(hsum) < 2**31 else np.int64),  # map positions
-            "fifo_x": np.zeros(group, np.int32),
-            "fifo_y": np.zeros(group, np.int32),  # the row, plus height + 2r + 1 on the ON plane (match_polarity)
+            "fifo_pos": np.zeros(cap - group, np.int32 if len(hsum) < 2**31 else np.int64),  # map positions
+            "fifo_x": np.zeros(group, xy),
+            "fifo_y": np.zeros(group, xy),  # the row, plus height + 2r + 1 on the ON plane (match_polarity)
             "fifo_state": np.zeros(2, np.int64),
             "per_pol": np.zeros(2, np.int64),
         }
@@ -253,7 +260,7 @@ class DensityFilter(InPlaceClassifier):
             i = call(t, x, y, p, i, codes, score)
             if i >= n:
                 return score
-            grow_fifo(s, ("fifo_t", "fifo_pos") + (() if self._far else ("fifo_x", "fifo_y")))
+            grow_fifo(s, ("fifo_t", "fifo_pos") if self._far else ("fifo_t", "fifo_x", "fifo_y"))
             self._bind()
             call = self._calls.setdefault(variant, self._bound(variant))
 
