@@ -197,30 +197,35 @@ def test_the_byte_named_when_a_chunk_straddles_blocks(tmp_path):
     """Blocks of 3 events, chunks of 4: each chunk takes events from two blocks (the property test above
     meets such splits only now and then). Event `bad` goes back in time, or has polarity 2 (the
     validator's error then names no event index)."""
-    def blocks(spans, record_bytes, bad, polarity):
-        out = []
-        for k, ((start, end), rb) in enumerate(zip(spans, record_bytes)):
-            t = np.arange(3 * k, 3 * k + 3, dtype=np.int64) * 10
-            z = np.zeros(3, np.uint16)
-            p = np.zeros(3, np.uint8)
-            if 3 * k <= bad < 3 * k + 3:
-                (p if polarity else t)[bad - 3 * k] = 2 if polarity else 0
+    def blocks(spans, record_bytes, bad, polarity, sizes=(3, 3, 3)):
+        out, first = [], 0
+        for (start, end), rb, n in zip(spans, record_bytes, sizes):
+            t = np.arange(first, first + n, dtype=np.int64) * 10
+            z = np.zeros(n, np.uint16)
+            p = np.zeros(n, np.uint8)
+            if first <= bad < first + n:
+                (p if polarity else t)[bad - first] = 2 if polarity else 0
             out.append(Block(t, z, z, p, start, end, rb))
+            first += n
         return out
 
     path = tmp_path / "rec.bin"
     path.write_bytes(b"\0" * 100)
     back = "timestamp 0 µs goes back from {} µs (pass a timestamp policy of 'sort' or 'drop' to accept such streams)"
-    for spans, rb, bad, polarity, want in (
+    for spans, rb, bad, polarity, want, *sizes in (
         ([(10, 25), (25, 40), (40, 55)], [5, 5, 5], 5, False, f"{path} at byte 35: event 5: {back.format(40)}"),
         ([(10, 25), (25, 40), (43, 58)], [5, 5, 5], 5, False, f"{path}: event 5: {back.format(40)} [in bytes 30..53]"),
         ([(10, 25), (25, 37), (37, 49)], [5, 4, 4], 2, False, f"{path}: event 2: {back.format(10)} [in bytes 10..29]"),
         ([(10, 30), (30, 50), (50, 70)], [0, 0, 0], 5, False, f"{path}: event 5: {back.format(40)} [in bytes 30..70]"),
         ([(10, 25), (25, 40), (40, 55)], [5, 5, 5], 5, True,
          f"{path}: event 5: polarity 2 is not 0 or 1 [in bytes 30..50]"),
+        # a chunk from three blocks; a chunk that begins a block after one ended a chunk exactly
+        ([(10, 30), (30, 35), (35, 60)], [0, 0, 0], 3, False, f"{path}: event 3: {back.format(20)} [in bytes 10..60]",
+         (2, 1, 2)),
+        ([(10, 30), (30, 50)], [0, 0], 5, False, f"{path}: event 5: {back.format(40)} [in bytes 30..50]", (4, 4)),
     ):
         with pytest.raises(EventError, match="^" + re.escape(want) + "$"):
-            list(Blocks(path, blocks(spans, rb, bad, polarity), chunk_events=4))
+            list(Blocks(path, blocks(spans, rb, bad, polarity, *sizes), chunk_events=4))
 
 
 @given(layouts(min_events=1), st.data(), st.booleans())
@@ -398,6 +403,7 @@ def test_seek_rows_reads_from_the_start_when_an_earlier_row_is_in_range(tmp_path
     assert (src.seek_rows(np.array([0.4, 1.6]), "ms", 1600), src.first_row) == (True, 1)  # 1.6 ms = 1600 µs
     assert (src.seek_rows(np.array([0.0004, 0.0016]), "s", 1001), src.first_row) == (True, 1)
     assert (src.seek_rows(np.array([1.4, 2.6]), "us", 2), src.first_row) == (True, 1)  # 1.4 µs rounds to 1
+    assert (src.seek_rows(np.array([1.4, 1.6], np.float32), "us", 2), src.first_row) == (True, 1)  # float32 too
     big = np.array([2**53, 2**53 + 1], np.int64)  # integer µs compared exactly, not through float64
     assert (src.seek_rows(big, "us", 2**53 + 1), src.first_row) == (True, 1)
 
@@ -432,8 +438,8 @@ def test_guess_columns_falls_back_when_the_table_does_not_say():
     t = [1.0, 2.0, 3.0]
     rows = lambda *cols: np.array(cols, np.float64).T  # noqa: E731
     assert guess_columns(np.zeros(4)) == "txyp"
-    assert guess_columns(rows([1.5, 2.5], [5, 5], [4, 2], [1, 0])) == "txyp"  # two rows are enough
-    assert guess_columns(rows([1, 1, 2], [5, 3, 5], [4, 9, 4], [1, 0, 1])) == "txyp"
+    assert guess_columns(rows([5, 5], [1.5, 2.5], [4, 2], [1, 0])) == "xtyp"  # two rows are enough
+    assert guess_columns(rows([5, 3, 5], [1, 1, 2], [4, 9, 4], [1, 0, 1])) == "xtyp"
     table = rows([5, 3, 6], [1, 2, 3], [4, 9, 4], [1, 0, 1]).astype(np.uint16)  # unsigned: 3 - 5 is no rise
     assert guess_columns(table) == "xtyp"
     assert guess_columns(rows(t, [5, 3, 5], [4, 9, 4], [0, 1, 0])) == "txyp"
