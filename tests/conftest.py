@@ -2,7 +2,7 @@ import os
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, settings
+from hypothesis import HealthCheck, Phase, settings
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_DATA = Path(os.environ.get("EVSTREAM_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
@@ -10,9 +10,12 @@ REAL_DATA = Path(os.environ.get("EVSTREAM_REAL_DATA", ROOT.parent / "shared" / "
 # `HYPOTHESIS_PROFILE=thorough make test` for a long search; the default keeps `make test` quick.
 # `mutation` (tests/mutation.py): fewer, fixed examples, since each mutant reruns the tests with the
 # mutated kernels as plain Python; the same examples for every mutant, so scores are reproducible.
+# (`mutation` does not shrink a failing example either: one failure kills the mutant, and shrinking it
+# cost a killed mutant minutes.)
 for name, examples in (("default", 25), ("thorough", 400), ("mutation", 10)):
     settings.register_profile(name, max_examples=examples, deadline=None, derandomize=name == "mutation",
-                              suppress_health_check=[HealthCheck.too_slow])
+                              suppress_health_check=[HealthCheck.too_slow],
+                              phases=[p for p in Phase if name != "mutation" or p is not Phase.shrink])
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 

@@ -237,7 +237,7 @@ def test_an_event_outside_the_sensor_names_its_byte_and_index(tmp_path_factory, 
     for b, first in zip(blocks, np.cumsum([0] + [len(b) for b in blocks])):
         if first <= bad < first + len(b):
             a = getattr(b, column).copy()
-            a[bad - first] = G.width if column == "x" else G.height + 1
+            a[bad - first] = G.width if column == "x" else G.height  # the first value outside
             setattr(b, column, a)
             x, y = int(b.x[bad - first]), int(b.y[bad - first])
         if located:
