@@ -154,6 +154,13 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "guess_columns: rising = fractional when there are 0 or 2+ fractional columns has len != 1 like []; "
     "range(5) adds a 5th index after the two kept; a placeholder other than '' or a 5th '' is overwritten "
     "or joins to nothing": [f"{_B}x_guess_columns__mutmut_{n}" for n in (37, 63, 67, 68)],
+    "__iter__'s last chunks: the loop cut until at most chunk_events (or, by time, at most MAX_CHUNK_EVENTS "
+    "and no bin boundary) remain, so the rest is one step, k == queue.n, and its watermark is None anyway": [
+        _B + "xǁFileSourceǁ__iter____mutmut_87",
+        _B + "xǁFileSourceǁ__iter____mutmut_88",
+        _B + "xǁFileSourceǁ__iter____mutmut_90",
+        _B + "xǁFileSourceǁ__iter____mutmut_95"],
+    "_check_coords: where = None for '' is as falsy": [_B + "xǁFileSourceǁ_check_coords__mutmut_17"],
     "warn's stacklevel (3 -> 4 or default): mutmut's trampoline adds a frame, so no test can see it under "
     "mutmut; outside it, test_dropped_events_are_counted_and_warned_about_where_the_stream_is_read fails on "
     "both (checked by hand)": [_B + "xǁFileSourceǁwarn__mutmut_6",

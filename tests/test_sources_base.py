@@ -114,14 +114,14 @@ def test_chunks_by_time_are_the_bins_from_the_first_event(tmp_path_factory, layo
     check_chunks(chunks, t, cuts, policy == "error")
 
 
-@given(layouts(), st.integers(1, 60), st.integers(1, 6))
-def test_chunks_by_time_are_cut_at_the_most_events_a_chunk_may_hold(tmp_path_factory, layout, chunk_us, most):
+@given(layouts(), st.integers(1, 60), st.integers(1, 6), st.integers(1, 3))
+def test_chunks_by_time_are_cut_at_the_most_events_a_chunk_may_hold(tmp_path_factory, layout, chunk_us, most, count):
     """A bin of more than MAX_CHUNK_EVENTS events (4 million; here a few) is cut into pieces of that
     many, the later pieces still in the same bin."""
     from evstream.sources import _base
 
     t, blocks, *_ = layout
-    src = source(tmp_path_factory.mktemp("b"), blocks, 10, chunk_us=chunk_us)
+    src = source(tmp_path_factory.mktemp("b"), blocks, 10, chunk_us=chunk_us, chunk_events=count)  # (count unused)
     saved, _base.MAX_CHUNK_EVENTS = _base.MAX_CHUNK_EVENTS, most
     try:
         chunks = list(src)
@@ -131,6 +131,18 @@ def test_chunks_by_time_are_cut_at_the_most_events_a_chunk_may_hold(tmp_path_fac
     starts = [0, *(np.flatnonzero(np.diff(bins)) + 1).tolist(), len(t)]
     cuts = sorted({c for a, b in zip(starts, starts[1:]) for c in range(a, b, most)} | {len(t)})
     check_chunks(chunks, t, cuts, True)
+
+
+def test_chunks_by_count_may_hold_more_than_a_time_chunk(tmp_path, monkeypatch):
+    """MAX_CHUNK_EVENTS bounds chunks by time only: the chunk_events a user asks for are given whole,
+    the last chunk too; and a 1-byte file read whole is read whole."""
+    from evstream.sources import _base
+
+    monkeypatch.setattr(_base, "MAX_CHUNK_EVENTS", 2)
+    t = np.arange(8, dtype=np.int64)
+    z = np.zeros(8, np.uint16)
+    src = source(tmp_path, [Block(t, z, z, z.astype(np.uint8), 0, 1)], 1, chunk_events=5)
+    assert [c.t.tolist() for c in src] == [[0, 1, 2, 3, 4], [5, 6, 7]] and src.fraction_read == 1.0
 
 
 @given(st.lists(st.lists(st.integers(0, 30), min_size=1, max_size=5), max_size=5), st.integers(0, 35),
@@ -254,6 +266,14 @@ def test_an_event_outside_the_sensor_names_its_byte_and_index(tmp_path_factory, 
         list(src)
 
 
+def test_an_event_outside_the_sensor_from_a_reader_that_cannot_tell_bytes(tmp_path):
+    z = np.zeros(3, np.uint16)
+    src = source(tmp_path, [Block(np.arange(3), z, np.array([0, 0, 40], np.uint16), z.astype(np.uint8))], 9)
+    want = f"{src.path}: event 2: (0, 40) outside the 64x32 sensor (size from test) (pass geometry="
+    with pytest.raises(EventError, match="^" + re.escape(want)):
+        list(src)
+
+
 def test_dropped_events_are_counted_and_warned_about_where_the_stream_is_read(tmp_path):
     t = np.array([5, 6, 4, 7, 3, 8], np.int64)
     z = np.zeros(6, np.uint16)
@@ -286,6 +306,7 @@ def test_options_are_checked_and_defaulted(tmp_path):
     assert (src.chunk_events, src.chunk_us, src.block_bytes, src.timestamps) == (1, 1, 1024, "drop")
     assert (src.geometry, src.geometry_source) == (Geometry(3, 2), "option")
     assert FileSource(tmp_path / "f", block_bytes=5000).block_bytes == 5000
+    assert (src.dropped, src.reordered) == (0, 0)
     for bad in ({"chunk_events": 0}, {"chunk_us": 0}, {"chunk_events": -1}):
         with pytest.raises(ValueError, match="^chunk_events and chunk_us must be positive$"):
             FileSource(tmp_path / "f", **bad)
