@@ -224,7 +224,7 @@ class TimeSeriesFilter(InPlaceClassifier):
             self._bind()
         n = len(chunk)
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
-        if len(s["live"]) < n and len(s["live"]) < BLOCK_EVENTS:  # kept: a call allocates nothing
+        if len(s["live"]) < min(n, BLOCK_EVENTS):  # kept up to KEPT_LIVE: a chunk call allocates nothing
             s["live"] = np.zeros(min(max(n, 2 * len(s["live"])), BLOCK_EVENTS), np.int64)
             self._bind()
         t, x, y = chunk.t, chunk.x, chunk.y
@@ -234,6 +234,9 @@ class TimeSeriesFilter(InPlaceClassifier):
             for a in range(0, n, BLOCK_EVENTS):
                 b = a + BLOCK_EVENTS
                 self._judge(want_score, t[a:b], x[a:b], y[a:b], codes[a:b], score[a:b] if want_score else score)
+        if len(s["live"]) > KEPT_LIVE:  # a long chunk's buffer is not kept as state (up to 8 MB)
+            s["live"] = np.zeros(0, np.int64)
+            self._bind()
         return score
 
     def _judge(self, want_score, t, x, y, codes, score) -> None:
@@ -276,3 +279,4 @@ _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score ne
 # A longer chunk is judged block by block (same classes): its gathered live indices stay in cache
 # (a 10 M-event call ran 0.3-0.4x the speed of 100k chunks without this).
 BLOCK_EVENTS = 1 << 20
+KEPT_LIVE = 1 << 14  # the live indices of chunks up to this long stay allocated between calls (128 KiB)
