@@ -372,3 +372,34 @@ def test_calibrate_command(tmp_path):
                  "-q"]) == 0
     assert main(["calibrate", str(short), "--out", str(tmp_path / "x.npz")]) == 2
     assert main(["calibrate", "recordings/bar.npz", "--model", str(out), "--out", str(out)]) == 2
+
+
+def test_calibrate_never_writes_over_the_shipped_model(tmp_path):
+    """Without --model, the model calibrated is the shipped one: --out naming it (or a link to it) is the
+    input as output, a usage error, and the shipped file is left as it was."""
+    from evstream.cli import main
+
+    before = DEFAULT_MODEL.read_bytes()
+    link = tmp_path / "default.npz"
+    link.symlink_to(DEFAULT_MODEL)
+    for out in (DEFAULT_MODEL, link):
+        assert main(["calibrate", "recordings/bar.npz", "--out", str(out)]) == 2
+    assert DEFAULT_MODEL.read_bytes() == before
+
+
+def test_a_keep_beyond_the_models_calibration_is_refused_not_clamped(capsys):
+    """The threshold for `keep` is interpolated on the model's calibration grid (0.50-0.99 for the shipped
+    model): a keep outside it used to run silently as the grid's end."""
+    from evstream.cli import main
+
+    m = load()
+    low, high = float(KEEP_GRID.min()), float(KEEP_GRID.max())
+    assert m.threshold(low) != m.threshold(high)
+    for keep in (low / 2, (1 + high) / 2):
+        with pytest.raises(ValueError, match="outside what this model was calibrated for"):
+            m.threshold(keep)
+        with pytest.raises(ValueError, match="calibrated for"):
+            LearnedFilter(keep=keep)
+    assert main(["replay", "recordings/bar.npz", "--denoise", "learned", "--keep", "0.3", "--save",
+                 "/nonexistent-folder/x.rrd"]) == 1  # refused before anything is read or written
+    assert "calibrated for" in capsys.readouterr().err

@@ -92,7 +92,7 @@ def cmd_calibrate(args) -> int:
     from ..denoise.learned import train
 
     out = Path(args.out)
-    for rec in [*args.recordings, *([args.model] if args.model else [])]:
+    for rec in [*args.recordings, args.model or model_file.DEFAULT_MODEL]:  # the shipped model too
         not_the_input(rec, out, "--out ")
     if out.suffix != ".npz":
         raise UsageError(f"--out {out}: a model file ends in .npz")

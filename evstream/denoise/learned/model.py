@@ -59,6 +59,9 @@ class Model:
         k = self.keep if keep is None else float(keep)
         if not 0 < k <= 1:
             raise ValueError(f"keep must be in (0, 1], got {shown(keep)}")
+        low, high = float(np.min(self.keep_grid)), float(np.max(self.keep_grid))
+        if low < high and not low - 1e-9 <= k <= high + 1e-9:  # np.interp would clamp without a word
+            raise ValueError(f"keep {k:g} is outside what this model was calibrated for ({low:g} to {high:g})")
         order = np.argsort(self.keep_grid)
         return float(np.interp(k, self.keep_grid[order], self.threshold_grid[order]))
 
