@@ -170,10 +170,11 @@ def test_publisher_whose_router_goes_away_says_how_much_nobody_received(tmp_path
         router = procs.router(port)
         sub = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--until-end",
                                "--archive", str(tmp_path / "flow.mcap"))
-        # bar.npz is 0.5 s of events (50 packets): 3.3 s at --speed 0.15, so the router dies in the middle
+        # bar.npz is 0.5 s of events (50 packets): 10 s at --speed 0.05, so the router dies in the middle and
+        # the publisher has seconds to hear of it (at 3.3 s, under load 10+, the stream could end first)
         with PacketCount(port, "evstream/cam/events") as flowing:
             pub = procs.start("publish", SHIPPED, "--key", "evstream/cam/events", "--connect",
-                              f"tcp/127.0.0.1:{port}", "--speed", "0.15", "--wait-subscribers", "20", "--drain-s", "1",
+                              f"tcp/127.0.0.1:{port}", "--speed", "0.05", "--wait-subscribers", "20", "--drain-s", "1",
                               "--json")
             flowing.wait(15)  # a third of the stream out, two thirds to go
             assert pub.poll() is None, procs.stderr(pub)
