@@ -60,6 +60,7 @@ RULE_BASED = tuple(METHODS)  # every method above is a hand-designed rule (no le
 # recordings given (noise seeds from train.SEED_BASE, never the evaluation's), never on R itself.
 TRAINED = ("learned",)
 METHODS["learned"] = None  # built per recording by `loo_models`
+MODEL_PREFIX = "model:"  # a user's model file, the same on every recording (`eval --model FILE`)
 LOO_EVENTS_PER_STREAM = 8_000
 
 
@@ -77,6 +78,24 @@ def loo_models(recordings: dict[str, EventChunk], progress: Callable[[str], None
         models[name] = train.fit(S.subset(S.group != gi))
         models[name].meta["name"] = f"trained without {name}"
     return models
+
+
+def user_models(files: Iterable[str], paths: Iterable[str]) -> dict:
+    """{"model:STEM": Model} of the user's model files (`eval --model`), for `run(fixed=)`. A model scored
+    on a recording it was trained on (the same bytes: its file keeps each training recording's SHA-256)
+    would say nothing about new data: a ValueError naming both."""
+    from .denoise.learned import load, train
+
+    hashes = {p: train.sha256(p) for p in paths if Path(p).is_file()}
+    fixed = {}
+    for file in files:
+        model = load(file)
+        trained = {r.get("sha256") for r in model.meta.get("trained_on", []) if isinstance(r, dict)}
+        for path, digest in hashes.items():
+            if digest in trained:
+                raise ValueError(f"--model {file} was trained on {path}: score it on recordings it never saw")
+        fixed[f"{MODEL_PREFIX}{Path(file).stem}"] = model
+    return fixed
 
 
 def history_us(stage) -> int:
@@ -103,20 +122,21 @@ def _metrics_at(label: np.ndarray, keep: np.ndarray, score: np.ndarray) -> dict:
 
 def evaluate(recording: str, signal: EventChunk, condition: Condition, seed: int,
              methods: Iterable[str], tune: bool = False, curves: dict | None = None,
-             models: dict | None = None) -> list[dict]:
+             models: dict | None = None, fixed: dict | None = None) -> list[dict]:
     """One noisy stream, every method: a result row per method. With `curves`, each method's ROC
     (downsampled to 200 points) is stored there under (recording, condition name, method). Trained
-    methods take their model from `models[recording]` (one that never saw this recording)."""
+    methods take their model from `models[recording]` (one that never saw this recording); a method named
+    "model:NAME" takes `fixed[name]`, a model file the user gives (`eval --model`)."""
     noisy = inject(signal, condition.spec(), seed=seed, t_start_us=int(signal.t[0]),
                    t_stop_us=int(signal.t[-1]) + 1)
     label = noisy.label
     t0, t1 = int(noisy.t[0]), int(noisy.t[-1])
     rows = []
     for name in methods:
-        if name in TRAINED:
+        if name in TRAINED or name.startswith(MODEL_PREFIX):
             from .denoise.learned import LearnedFilter
 
-            stage = LearnedFilter(model=models[recording])
+            stage = LearnedFilter(model=models[recording] if name in TRAINED else fixed[name])
         else:
             stage = METHODS[name]()
         codes, score = stage.classify_scored(noisy.replace(label=None))
@@ -149,12 +169,15 @@ def _tuned(t, label, score, warm, t_split) -> dict:
 
 def run(recordings: dict[str, EventChunk], conditions: Iterable[Condition], seeds: Iterable[int],
         methods: Iterable[str], tune: bool = False, progress: Callable[[int, int, str], None] | None = None,
-        curves: dict | None = None) -> list[dict]:
+        curves: dict | None = None, fixed: dict | None = None) -> list[dict]:
     """Every recording × condition × seed × method; rows as `evaluate` returns them. ROC curves of the
     first seed go into `curves` when given. `progress(done, total, what)` is called before each
-    recording × condition × seed (and once at the end, done == total)."""
+    recording × condition × seed (and once at the end, done == total). `fixed`: {"model:NAME": Model},
+    the user's model files, scored as they are on every recording (the caller makes sure none was trained
+    on them)."""
     methods, seeds, conditions = list(methods), list(seeds), list(conditions)
-    unknown = set(methods) - set(METHODS)
+    methods += [m for m in (fixed or {}) if m not in methods]
+    unknown = set(methods) - set(METHODS) - set(fixed or {})
     if unknown:
         raise ValueError(f"unknown method(s) {sorted(unknown)}; known: {', '.join(METHODS)}")
     models = None
@@ -177,7 +200,7 @@ def run(recordings: dict[str, EventChunk], conditions: Iterable[Condition], seed
                     progress(done, total, f"{rec} {cond.name} seed {seed}")
                 done += 1
                 keep_curves = curves if seed == seeds[0] else None
-                for row in evaluate(rec, signal, cond, seed, methods, tune, keep_curves, models):
+                for row in evaluate(rec, signal, cond, seed, methods, tune, keep_curves, models, fixed):
                     rows.append({**row, **notes})
     if progress:
         progress(total, total, "")

@@ -403,3 +403,29 @@ def test_a_keep_beyond_the_models_calibration_is_refused_not_clamped(capsys):
     assert main(["replay", "recordings/bar.npz", "--denoise", "learned", "--keep", "0.3", "--save",
                  "/nonexistent-folder/x.rrd"]) == 1  # refused before anything is read or written
     assert "calibrated for" in capsys.readouterr().err
+
+
+def test_eval_scores_a_users_model_on_recordings_it_never_saw_and_refuses_its_own(tmp_path, capsys):
+    """`evstream eval REC --model M.npz`: the model scored as it is, a method `model:STEM` beside the rules,
+    with the same rows as the stage run by hand; on a recording it was trained on (same SHA-256), one line
+    and exit 1 before any work."""
+    import evstream
+    from evstream import evaluation
+    from evstream.cli import main
+
+    model = tmp_path / "mine.npz"
+    assert main(["train", "recordings/bar.npz", "--out", str(model), "--events-per-stream", "3000"]) == 0
+    capsys.readouterr()
+    rows_file = tmp_path / "rows.json"
+    assert main(["eval", "recordings/ball.npz", "--model", str(model), "--methods", "paper", "--ratios", "1",
+                 "--rates-hz", "--seeds", "1", "--json", str(rows_file)]) == 0
+    assert "model:mine" in capsys.readouterr().out
+    rows = {r["method"]: r for r in json.loads(rows_file.read_text())}
+    assert set(rows) == {"paper", "model:mine"}
+    ball = evaluation.as_signal(evstream.read("recordings/ball.npz"))[0]
+    by_hand = evaluation.evaluate("ball", ball, evaluation.Condition(noise_ratio=1.0), 0, ["model:mine"],
+                                  fixed={"model:mine": load(model)})[0]
+    for metric in ("edp", "auc", "tpr"):
+        assert rows["model:mine"][metric] == pytest.approx(by_hand[metric]), metric
+    assert main(["eval", "recordings/bar.npz", "--model", str(model), "--ratios", "1", "--rates-hz"]) == 1
+    assert "was trained on recordings/bar.npz" in capsys.readouterr().err

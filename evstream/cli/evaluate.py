@@ -64,6 +64,8 @@ def cmd_eval(args) -> int:
                     Path(out).unlink()
             except OSError as e:
                 raise OSError(f"{flag} {out}: cannot write there: {e.strerror or e}") from None
+    if args.model and (args.out or args.no_reference):
+        raise UsageError("--model goes with eval in one process on labelled noise (not with --out or --no-reference)")
     if args.out:
         return _eval_many(args)
     paths = list(args.recordings) or sorted(str(p) for p in Path("recordings").glob("*.npz"))
@@ -73,6 +75,7 @@ def cmd_eval(args) -> int:
     named = set(args.recordings)  # a recording the user named and that cannot be read is an error, not a skip
     if args.real:
         paths += sorted(str(p) for p in Path(args.real).iterdir() if p.is_file() and p.suffix != ".md")
+    fixed = evaluation.user_models(args.model, paths)  # a model on its own training recording: one line, exit 1
     recordings = read_recordings(paths, args.min_duration_s, "evstream eval", strict=named)
     if not recordings:
         raise UsageError("no recording to evaluate: each one was skipped (above)")
@@ -82,7 +85,7 @@ def cmd_eval(args) -> int:
     if set(methods) & set(evaluation.TRAINED) and len(recordings) < 2:  # was left out without a word
         methods = [m for m in methods if m not in evaluation.TRAINED]
         note = "learned: left out (scored leave-one-recording-out: it needs a second recording to train on)"
-        if not methods:
+        if not methods and not fixed:
             raise UsageError(f"--methods {args.methods}: {note}")
         print(f"evstream eval: note: {note}", file=sys.stderr)
     conditions = [evaluation.Condition(noise_ratio=r) for r in args.ratios] + [
@@ -96,7 +99,7 @@ def cmd_eval(args) -> int:
 
     try:
         rows = evaluation.run(recordings, conditions, range(args.seeds), methods, tune=args.tune,
-                              progress=say, curves=curves)
+                              progress=say, curves=curves, fixed=fixed)
     finally:
         progress.done()
     print(evaluation.markdown(rows, tune=args.tune) if args.markdown else evaluation.report(rows, tune=args.tune))
@@ -231,7 +234,7 @@ def read_recordings(paths, min_duration_s: float, command: str, strict: bool | s
     seen = set()  # (events, first t, last t): a converted twin of a file already read is skipped
     for path in paths:
         try:
-            events = _read_all(path)
+            events = api.read(path)
         except (EventError, OSError, ValueError) as e:
             if strict is True or (isinstance(strict, set) and path in strict):
                 raise
@@ -249,10 +252,6 @@ def read_recordings(paths, min_duration_s: float, command: str, strict: bool | s
         seen.add(signature)
         recordings[Path(path).stem] = events
     return recordings
-
-
-def _read_all(path: str):
-    return api.read(path)
 
 
 def add_synth_parser(sub) -> None:
@@ -278,6 +277,8 @@ def add_eval_parser(sub) -> None:
                                                  "and globs")
     p.add_argument("--real", metavar="DIR", help="also every readable recording in DIR")
     p.add_argument("--methods", help="comma-separated (default: all)")
+    p.add_argument("--model", metavar="MODEL.npz", action="append", default=[], help="also score this model (`evstream "
+                   "train`/`calibrate`) as it is, as method model:STEM (repeatable; not on its training data)")
     p.add_argument("--ratios", type=float, nargs="*", default=[0.1, 0.2, 0.5, 1.0, 1.5, 2.0],
                    help="noise ratios (0.5 = 50 %%)")
     p.add_argument("--rates-hz", type=float, nargs="*", default=[1.0, 3.0, 5.0],
