@@ -160,7 +160,6 @@ def worker_env() -> dict[str, str]:
     return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "EVSTREAM_THREADS": "0", "EVSTREAM_BATCH_WORKER": "1"}
 
 
-
 def start_client(jobs: int | None = None, scheduler: str | None = None):
     """A Dask client: on an existing scheduler (`tcp://HOST:8786`), or on a new local cluster of `jobs`
     worker processes (default: the cores this process may use), one thread each, its HTTP endpoint on a
@@ -247,16 +246,21 @@ def _takes_stop(work: Callable) -> bool:
         return False
 
 
+def _interrupted(error: str, seconds: float = 0.0, started: bool = True, warnings_: list | None = None) -> dict:
+    """What a task stopped by its run's stop (or never started) comes back as."""
+    return {"ok": False, "interrupted": True, "started": started, "error": error, "seconds": seconds,
+            "warnings": warnings_ or []}
+
+
 def _run_task(work: Callable, source: str, out: str, params: dict, run: str | None = None, key: str = "") -> dict:
     """On a worker: the one-file function, timed; its error as one line (the job goes on). With `run`: a
     run stopped before the task started skips it; `work` taking `stop` gets a TaskStop to poll."""
     t0 = time.perf_counter()
-    stopped = {"ok": False, "interrupted": True, "started": True, "error": "interrupted", "warnings": []}
     try:
         if run is not None:
             with _lock:
                 if run in _stopped:
-                    return {**stopped, "started": False, "error": "not started", "seconds": 0.0}
+                    return _interrupted("not started", started=False)
                 _running.setdefault(run, {})[key] = threading.get_ident()
         try:
             return _call(work, source, out, params, run, t0)
@@ -265,7 +269,7 @@ def _run_task(work: Callable, source: str, out: str, params: dict, run: str | No
                 with _lock:
                     _running.get(run, {}).pop(key, None)
     except KeyboardInterrupt:  # _interrupt_run's exception, landed after the task's own handler
-        return {**stopped, "seconds": time.perf_counter() - t0}
+        return _interrupted("interrupted", time.perf_counter() - t0)
 
 
 def _call(work: Callable, source: str, out: str, params: dict, run: str | None, t0: float) -> dict:
@@ -274,8 +278,8 @@ def _call(work: Callable, source: str, out: str, params: dict, run: str | None, 
         try:  # with the result: a worker's stderr is not the user's (another machine's, with --scheduler)
             summary = work(source, out, **params, **extra)
         except KeyboardInterrupt as e:  # TaskInterrupted: its writers cleaned up, as after a Ctrl-C
-            return {"ok": False, "interrupted": True, "started": True, "error": str(e) or "interrupted",
-                    "seconds": time.perf_counter() - t0, "warnings": [str(w.message) for w in caught]}
+            return _interrupted(str(e) or "interrupted", time.perf_counter() - t0,
+                                warnings_=[str(w.message) for w in caught])
         except Exception as e:  # one recording's failure is reported, not the job's
             return {"ok": False, "error": f"{type(e).__name__}: {e}" if not str(e) else str(e),
                     "seconds": time.perf_counter() - t0, "warnings": [str(w.message) for w in caught]}
@@ -412,11 +416,10 @@ def _stop(client, futures: dict, run: str, signum: int, finished: set) -> dict:
         if f.done() and f.status == "finished":
             got[t] = _got(f)
         elif f.key in running:
-            got[t] = {"ok": False, "interrupted": True, "started": True, "seconds": 0.0,
-                      "error": f"still running {STOP_WAIT_S:g} s after the stop: ended with the cluster (a "
-                               "temporary NAME.part beside its output may be left)"}
+            got[t] = _interrupted(f"still running {STOP_WAIT_S:g} s after the stop: ended with the cluster (a "
+                                  "temporary NAME.part beside its output may be left)")
         else:
-            got[t] = {"ok": False, "interrupted": True, "started": False, "error": "not started", "seconds": 0.0}
+            got[t] = _interrupted("not started", started=False)
     return got
 
 

@@ -22,6 +22,7 @@ def shown(value) -> str:
         value = value.item()
     return repr(value)
 
+
 __all__ = [
     "EVENT_DTYPE",
     "EventChunk",
