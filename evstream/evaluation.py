@@ -235,9 +235,10 @@ def table(rows: list[dict], recording: str, cell: Callable[[dict], str], title: 
     methods = list(dict.fromkeys(r["method"] for r in rs))
     by = {(r["method"], r["condition"]): r for r in rs}
     width = max(11, *(len(cell(r)) for r in rs)) if rs else 11
-    lines = [f"{title} — {recording}", f"{'method':<12}" + "".join(f"{c:>{width + 1}}" for c in conds)]
+    name = max(12, *(len(m) + 1 for m in methods)) if methods else 12  # a user's model:NAME can be longer
+    lines = [f"{title} — {recording}", f"{'method':<{name}}" + "".join(f"{c:>{width + 1}}" for c in conds)]
     for m in methods:
-        lines.append(f"{m:<12}" + "".join(f"{cell(by[(m, c)]) if (m, c) in by else '-':>{width + 1}}"
+        lines.append(f"{m:<{name}}" + "".join(f"{cell(by[(m, c)]) if (m, c) in by else '-':>{width + 1}}"
                                           for c in conds))
     return "\n".join(lines)
 

@@ -42,14 +42,14 @@ def _identity(path) -> tuple[int, int] | None:
     return st.st_dev, st.st_ino
 
 
-def check_not_input(target, inputs, flag: str = "") -> None:
-    """Raise `OutputIsInput` when `target` exists and is the same file as one of `inputs`."""
+def check_not_input(target, inputs, flag: str = "", what: str = "the input recording") -> None:
+    """Raise `OutputIsInput` when `target` exists and is the same file as one of `inputs` (`what` they are)."""
     mine = _identity(target)
     if mine is None:
         return
     for path in inputs:
         if path is not None and _identity(path) == mine:
-            raise OutputIsInput(f"{flag}{os.fspath(target)}: that is the input recording; "
+            raise OutputIsInput(f"{flag}{os.fspath(target)}: that is {what}; "
                                 "writing there would destroy it")
 
 

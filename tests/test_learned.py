@@ -374,7 +374,7 @@ def test_calibrate_command(tmp_path):
     assert main(["calibrate", "recordings/bar.npz", "--model", str(out), "--out", str(out)]) == 2
 
 
-def test_calibrate_never_writes_over_the_shipped_model(tmp_path):
+def test_calibrate_never_writes_over_the_shipped_model(tmp_path, capsys):
     """Without --model, the model calibrated is the shipped one: --out naming it (or a link to it) is the
     input as output, a usage error, and the shipped file is left as it was."""
     from evstream.cli import main
@@ -384,6 +384,7 @@ def test_calibrate_never_writes_over_the_shipped_model(tmp_path):
     link.symlink_to(DEFAULT_MODEL)
     for out in (DEFAULT_MODEL, link):
         assert main(["calibrate", "recordings/bar.npz", "--out", str(out)]) == 2
+        assert "that is the model being calibrated" in capsys.readouterr().err
     assert DEFAULT_MODEL.read_bytes() == before
 
 
@@ -413,19 +414,26 @@ def test_eval_scores_a_users_model_on_recordings_it_never_saw_and_refuses_its_ow
     from evstream import evaluation
     from evstream.cli import main
 
-    model = tmp_path / "mine.npz"
+    model = tmp_path / "mine_from_bar.npz"
     assert main(["train", "recordings/bar.npz", "--out", str(model), "--events-per-stream", "3000"]) == 0
     capsys.readouterr()
     rows_file = tmp_path / "rows.json"
     assert main(["eval", "recordings/ball.npz", "--model", str(model), "--methods", "paper", "--ratios", "1",
                  "--rates-hz", "--seeds", "1", "--json", str(rows_file)]) == 0
-    assert "model:mine" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "model:mine_from_bar" in printed
+    for block in printed.split("\n\n"):  # the tables' columns line up past the longer method name
+        lines = [line for line in block.splitlines()[1:]
+                 if line.split(" ")[0] in ("method", "paper", "model:mine_from_bar")]
+        if lines and lines[0].startswith("method"):
+            assert len({len(line) for line in lines}) == 1, block
     rows = {r["method"]: r for r in json.loads(rows_file.read_text())}
-    assert set(rows) == {"paper", "model:mine"}
+    assert set(rows) == {"paper", "model:mine_from_bar"}
     ball = evaluation.as_signal(evstream.read("recordings/ball.npz"))[0]
-    by_hand = evaluation.evaluate("ball", ball, evaluation.Condition(noise_ratio=1.0), 0, ["model:mine"],
-                                  fixed={"model:mine": load(model)})[0]
+    name = "model:mine_from_bar"
+    by_hand = evaluation.evaluate("ball", ball, evaluation.Condition(noise_ratio=1.0), 0, [name],
+                                  fixed={name: load(model)})[0]
     for metric in ("edp", "auc", "tpr"):
-        assert rows["model:mine"][metric] == pytest.approx(by_hand[metric]), metric
+        assert rows["model:mine_from_bar"][metric] == pytest.approx(by_hand[metric]), metric
     assert main(["eval", "recordings/bar.npz", "--model", str(model), "--ratios", "1", "--rates-hz"]) == 1
     assert "was trained on recordings/bar.npz" in capsys.readouterr().err

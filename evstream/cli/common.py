@@ -54,13 +54,13 @@ def geometry_flag(text: str):
         raise UsageError(f"--geometry {text}: {str(e).removeprefix(f'geometry {text!r}: ')}") from None
 
 
-def not_the_input(source: str, out, flag: str) -> None:
+def not_the_input(source: str, out, flag: str, what: str = "the input recording") -> None:
     """An output that is the input recording (by file identity: links too) would destroy it before (or
     while) it is read."""
     from evstream.safe_write import OutputIsInput, check_not_input
 
     try:
-        check_not_input(out, [source], flag) if out else None
+        check_not_input(out, [source], flag, what) if out else None
     except OutputIsInput as e:
         raise UsageError(str(e)) from None
 

@@ -92,8 +92,9 @@ def cmd_calibrate(args) -> int:
     from ..denoise.learned import train
 
     out = Path(args.out)
-    for rec in [*args.recordings, args.model or model_file.DEFAULT_MODEL]:  # the shipped model too
+    for rec in args.recordings:
         not_the_input(rec, out, "--out ")
+    not_the_input(args.model or model_file.DEFAULT_MODEL, out, "--out ", "the model being calibrated")
     if out.suffix != ".npz":
         raise UsageError(f"--out {out}: a model file ends in .npz")
     if not out.parent.is_dir():
