@@ -4,14 +4,21 @@ an existing scheduler's.
 
 A task carries only paths and plain parameters; the work function is named by reference (module and
 name), so nothing of the user's data is pickled onto the wire beyond Dask's own task messages. Each task
-writes whole-or-nothing (evstream.safe_write), which is what makes a re-run skip what is done and a task
-that Dask re-runs after a worker died safe: a half-written output never sits at the target's name.
+writes whole-or-nothing (evstream.safe_write), which is what makes a task that Dask re-runs after a worker
+died safe: a half-written output never sits at the target's name.
+
+A re-run skips a task only when its output was made from the recording as it is now with the same
+settings: each finished task leaves a small JSON record beside its output (`.NAME.settings.json`: the
+work function, its parameters, and the size and time of the recording and of the output when it was
+made). An output without one, whose settings differ, or whose recording or output changed since, is
+made again (`TaskResult.redone` says why).
 """
 
 from __future__ import annotations
 
 import glob
 import inspect
+import json
 import logging
 import os
 import signal
@@ -23,8 +30,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["RECORDING_SUFFIXES", "STOP_WAIT_S", "Task", "TaskInterrupted", "TaskResult", "TaskStop", "out_name", "plan",
-           "run_many", "start_client", "up_to_date"]
+__all__ = ["NOT_SETTINGS", "RECORDING_SUFFIXES", "STOP_WAIT_S", "Task", "TaskInterrupted", "TaskResult", "TaskStop",
+           "out_name", "plan", "redo_reason", "run_many", "settings_file", "settings_of", "start_client"]
 
 # What a folder walk takes as a recording (open_source reads by content; a walk needs a name filter).
 RECORDING_SUFFIXES = (".npz", ".npy", ".h5", ".hdf5", ".aedat4", ".aedat", ".mat", ".mcap", ".dat", ".raw",
@@ -49,10 +56,13 @@ class TaskResult:
     error: str | None = None
     summary: dict = field(default_factory=dict)  # what the one-file function returned
     warnings: list[str] = field(default_factory=list)  # what the reader warned of (a truncated file), one line each
+    redone: str | None = None  # done over an earlier output: why (its settings changed, its recording changed, ...)
+    changed: dict = field(default_factory=dict)  # the settings that changed: name -> [before, now]
 
     def as_dict(self) -> dict:
         return {"source": self.source, "out": self.out, "status": self.status, "seconds": self.seconds,
-                "events": self.events, "classes": self.classes, "error": self.error, "warnings": self.warnings}
+                "events": self.events, "classes": self.classes, "error": self.error, "warnings": self.warnings,
+                "redone": self.redone, "changed": self.changed}
 
 
 def _is_recording(path: Path) -> bool:
@@ -144,13 +154,74 @@ def _has_namesake(source: Path) -> bool:
                and _is_recording(source.parent / name) for name in names)
 
 
-def up_to_date(task: Task) -> bool:
-    """Whether the task's output is complete and newer than its input. Complete because every writer puts
-    it in place whole (a temporary renamed when done): an output at the target's name is a finished one."""
+# Parameters that say how a task runs, not what it writes: a change in them does not redo an output.
+NOT_SETTINGS = frozenset({"quiet", "json", "command_line"})
+
+
+def settings_of(work: Callable, params: dict) -> dict:
+    """What a task's output depends on besides its recording: the work function (by name) and its
+    parameters but NOT_SETTINGS, as JSON gives them back (tuples as lists)."""
+    chosen = {k: params[k] for k in sorted(params) if k not in NOT_SETTINGS}
+    return json.loads(json.dumps({"work": f"{work.__module__}:{work.__qualname__}", **chosen}))
+
+
+def settings_file(out) -> Path:
+    """The record of how `out` was made, beside it: `.NAME.settings.json` (hidden: not another output, and
+    no walk takes it for a recording)."""
+    out = Path(out)
+    return out.with_name(f".{out.name}.settings.json")
+
+
+def _stamp(path) -> list[int]:
+    st = os.stat(path)
+    return [st.st_size, st.st_mtime_ns]
+
+
+def redo_reason(task: Task, settings: dict) -> tuple[str | None, dict]:
+    """Whether the task must run: (None, {}) when its output is up to date — there, with a record saying it
+    was made from the recording as it is now (size and time) with these `settings`, and not changed since;
+    else (why, the settings that changed: name -> [before, now]), why being "" when there is no output yet.
+    Every writer puts its output in place whole, so an output at the target's name is a finished one."""
     try:
-        return os.stat(task.out).st_mtime_ns >= os.stat(task.source).st_mtime_ns
+        made = _stamp(task.out)
     except OSError:
-        return False
+        return "", {}
+    try:
+        record = json.loads(settings_file(task.out).read_text())
+        before, source_was, out_was = record["settings"], record["source_stamp"], record["out_stamp"]
+        if not isinstance(before, dict):
+            raise TypeError
+    except (OSError, ValueError, KeyError, TypeError):
+        return "no record of the settings it was made with", {}
+    try:
+        source_now = _stamp(task.source)
+    except OSError:
+        source_now = None
+    if out_was != made:
+        return "the output changed after it was made", {}
+    if source_was != source_now:
+        return "its recording changed", {}
+    if before != settings:
+        changed = {k: [before.get(k), settings.get(k)] for k in sorted(set(before) | set(settings))
+                   if before.get(k) != settings.get(k)}
+        return "settings changed: " + ", ".join(f"{k} {_shown(a)} -> {_shown(b)}" for k, (a, b) in changed.items()), \
+            changed
+    return None, {}
+
+
+def _shown(v) -> str:
+    return "none" if v is None else json.dumps(v) if isinstance(v, list | dict) else str(v)
+
+
+def _write_record(source: str, out: str, settings: dict, source_stamp: list[int] | None, command_line) -> None:
+    """After a task wrote `out`: how it was made, beside it (written whole; a run killed before this leaves
+    no record, or the last one, whose output stamp then no longer matches: either way the task is redone)."""
+    from .safe_write import AtomicOutput
+
+    record = {"source": source, "out": out, "settings": settings, "source_stamp": source_stamp,
+              "out_stamp": _stamp(out), "command_line": command_line}
+    with AtomicOutput(settings_file(out)) as part:
+        Path(part).write_text(json.dumps(record, indent=1) + "\n")
 
 
 def worker_env() -> dict[str, str]:
@@ -252,9 +323,11 @@ def _interrupted(error: str, seconds: float = 0.0, started: bool = True, warning
             "warnings": warnings_ or []}
 
 
-def _run_task(work: Callable, source: str, out: str, params: dict, run: str | None = None, key: str = "") -> dict:
+def _run_task(work: Callable, source: str, out: str, params: dict, run: str | None = None, key: str = "",
+              settings: dict | None = None) -> dict:
     """On a worker: the one-file function, timed; its error as one line (the job goes on). With `run`: a
-    run stopped before the task started skips it; `work` taking `stop` gets a TaskStop to poll."""
+    run stopped before the task started skips it; `work` taking `stop` gets a TaskStop to poll. With
+    `settings`: once the output is whole, the record of how it was made beside it (`redo_reason`)."""
     t0 = time.perf_counter()
     try:
         if run is not None:
@@ -263,7 +336,7 @@ def _run_task(work: Callable, source: str, out: str, params: dict, run: str | No
                     return _interrupted("not started", started=False)
                 _running.setdefault(run, {})[key] = threading.get_ident()
         try:
-            return _call(work, source, out, params, run, t0)
+            return _call(work, source, out, params, run, t0, settings)
         finally:
             if run is not None:
                 with _lock:
@@ -272,8 +345,13 @@ def _run_task(work: Callable, source: str, out: str, params: dict, run: str | No
         return _interrupted("interrupted", time.perf_counter() - t0)
 
 
-def _call(work: Callable, source: str, out: str, params: dict, run: str | None, t0: float) -> dict:
+def _call(work: Callable, source: str, out: str, params: dict, run: str | None, t0: float,
+          settings: dict | None = None) -> dict:
     extra = {"stop": TaskStop(run)} if run is not None and _takes_stop(work) else {}
+    try:  # before reading: a recording changed while it is read is made again by the next run
+        source_stamp = _stamp(source)
+    except OSError:  # the work function says what is wrong with it
+        source_stamp = None
     with warnings.catch_warnings(record=True) as caught:  # a reader's warning (a truncated file) goes back
         try:  # with the result: a worker's stderr is not the user's (another machine's, with --scheduler)
             summary = work(source, out, **params, **extra)
@@ -284,20 +362,26 @@ def _call(work: Callable, source: str, out: str, params: dict, run: str | None, 
             return {"ok": False, "error": f"{type(e).__name__}: {e}" if not str(e) else str(e),
                     "seconds": time.perf_counter() - t0, "warnings": [str(w.message) for w in caught]}
     stopped = run is not None and run in _stopped and isinstance(summary, dict) and summary.get("partial")
+    said = [str(w.message) for w in caught]
+    if settings is not None and not stopped:
+        try:
+            _write_record(source, out, settings, source_stamp, params.get("command_line"))
+        except (OSError, ValueError) as e:  # the output is whole; without its record a re-run makes it again
+            said.append(f"{out}: no record of its settings written ({e}); a re-run makes it again")
     return {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0, "interrupted": bool(stopped),
-            "warnings": [str(w.message) for w in caught]}
+            "warnings": said}
 
 
 def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, client=None, jobs: int | None = None,
              scheduler: str | None = None, force: bool = False, retries: int = 2,
              on_result: Callable[[TaskResult, int, int], None] | None = None,
              warm: Callable[[], None] | None = None, stop: Callable[[], object] | None = None) -> list[TaskResult]:
-    """Run `work(source, out, **params)` for every task (skipping up-to-date outputs unless `force`) on a
-    Dask cluster; returns one TaskResult per task, in the tasks' order. `work` must be importable on the
-    workers (a module-level function) and return a dict (with `events_in` and `events_signal`, ... when it
-    has them). `warm()` runs once here before anything is submitted (numba's on-disk cache, compiled once
-    instead of once per worker), then on every worker (its imports and cached kernels loaded, so a
-    recording's seconds are its own; `warm` must then be picklable by reference, e.g. a partial).
+    """Run `work(source, out, **params)` for every task (skipping up-to-date outputs unless `force`:
+    `redo_reason`) on a Dask cluster; returns one TaskResult per task, in the tasks' order. `work` must be
+    importable on the workers (a module-level function) and return a dict (with `events_in` and
+    `events_signal`, ... when it has them). `warm()` runs once here before anything is submitted (numba's
+    on-disk cache, compiled once instead of once per worker), then on every worker (its imports and cached
+    kernels loaded, so a recording's seconds are its own; `warm` must then be picklable by reference, e.g. a partial).
     `retries`: Dask's re-runs of a task whose worker died or that raised.
     `on_result(result, done, total)` is called as each finishes (progress).
 
@@ -308,13 +392,16 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     raised where they are (a second Ctrl-C's effect; their clean-up runs), and all are waited for up to
     STOP_WAIT_S; they come back "interrupted". A second KeyboardInterrupt here closes the cluster at once."""
     params = params or {}
+    settings = settings_of(work, params)
     results: dict[Task, TaskResult] = {}
-    todo = []
+    todo, why = [], {}
     for t in tasks:
-        if not force and up_to_date(t):
+        reason, changed = redo_reason(t, settings)
+        if reason is None and not force:
             results[t] = TaskResult(t.source, t.out, "skipped")
         else:
             todo.append(t)
+            why[t] = ("--force" if force and os.path.exists(t.out) else reason or None), changed
     total, done = len(tasks), len(results)
     if on_result:
         for r in results.values():
@@ -325,20 +412,23 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
 
     count = [done]
 
-    def report(r: TaskResult) -> None:
+    def report(t: Task, r: TaskResult) -> None:
+        if r.status == "done":
+            r.redone, r.changed = why[t]
         count[0] += 1
         if on_result:
             on_result(r, count[0], total)
 
     if todo and not stopping():
         results.update(_submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm, stop, stopping,
-                                        report))
+                                        report, settings))
     for t in tasks:  # stopped before they were submitted
         results.setdefault(t, TaskResult(t.source, t.out, "interrupted", error="not started"))
     return [results[t] for t in tasks]
 
 
-def _submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm, stop, stopping, report) -> dict:
+def _submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm, stop, stopping, report,
+                     settings) -> dict:
     """run_many's cluster part: start (unless given), warm, submit, collect; a stop at any moment (during
     the start too: a worker killed by the terminal's Ctrl-C while it spawned only says that the run
     stopped) drops the unstarted tasks and waits for the running ones (_stop)."""
@@ -348,7 +438,7 @@ def _submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm,
 
     def take(t: Task, got: dict) -> None:
         results[t] = _result(t, got)
-        report(results[t])
+        report(t, results[t])
 
     own, cluster, futures, run, interrupt = client is None, None, {}, uuid.uuid4().hex, None
     try:
@@ -361,8 +451,8 @@ def _submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm,
                 client.run(warm)  # each worker's imports and cached kernels loaded before its first recording
             if client is not None and not stopping():
                 keys = [f"evstream-{i}-{os.path.basename(t.source)}-{run[:8]}" for i, t in enumerate(todo)]
-                futures = {client.submit(_run_task, work, t.source, t.out, params, run, key, retries=retries,
-                                         pure=False, key=key): t for t, key in zip(todo, keys)}
+                futures = {client.submit(_run_task, work, t.source, t.out, params, run, key, settings,
+                                         retries=retries, pure=False, key=key): t for t, key in zip(todo, keys)}
             pending = as_completed(futures)
             while not pending.is_empty() and not stopping():
                 for future in pending.next_batch(block=False):

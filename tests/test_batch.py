@@ -139,7 +139,8 @@ def test_a_worker_killed_mid_job_loses_and_duplicates_nothing(client, dataset, t
         assert main(["archive", task.source, str(one), *FLAGS]) == 0
         assert_same_events(task.out, one)
     # what the killed task had written stays beside its target as a .part, never at the target's name
-    assert all(p.name.endswith(".part") for p in out.rglob("*") if p.is_file() and p.suffix != ".mcap")
+    assert all(p.name.endswith(".part") for p in out.rglob("*") if p.is_file() and p.suffix != ".mcap"
+               and not p.name.endswith(".settings.json"))
     client.wait_for_workers(2, timeout=60)  # the nanny restarts the worker
 
 
@@ -170,6 +171,73 @@ def test_rerun_skips_what_is_done_and_reports_a_bad_recording(client, dataset, t
         p: t for p, t in mtimes.items() if p.name != "bar.mcap"}
     assert main([*argv, "--force"]) == 0
     assert json.loads(capsys.readouterr().out)["done"] == 6
+
+
+def test_a_rerun_with_other_settings_makes_again_what_they_change(client, dataset, tmp_path, capsys):
+    """A re-run used to skip every recording whose output was newer than it, whatever the flags: `archive
+    DATA/ OUT/ --end-us 100000` then `--end-us 50000` said "3 skipped" and kept the longer archives. Each
+    output now has its settings recorded beside it; a re-run with other settings (or of an output with no
+    record) makes it again and says so in the table; the same settings still skip."""
+    data = tmp_path / "data"
+    shutil.copytree(dataset / "synthetic", data)
+    out = tmp_path / "out"
+    base = ["archive", str(data), str(out), "--scheduler", client.scheduler.address, "--keep-noise"]
+
+    def run(*flags, quiet=True) -> dict:
+        assert main([*base, *flags, "--json", *(["--quiet"] if quiet else [])]) == 0
+        report = json.loads(capsys.readouterr().out)
+        return {Path(r["source"]).name: r for r in report["recordings"]}
+
+    first = run("--end-us", "100000")
+    assert {r["status"] for r in first.values()} == {"done"} and not any(r["redone"] for r in first.values())
+    records = sorted(p.name for p in out.glob(".*.settings.json"))
+    assert records == [".ball.mcap.settings.json", ".bar.mcap.settings.json", ".turntable.mcap.settings.json"]
+    assert {r["status"] for r in run("--end-us", "100000").values()} == {"skipped"}
+    assert {r["status"] for r in run("--end-us", "100000", quiet=False).values()} == {"skipped"}  # not a setting
+    shorter = run("--end-us", "50000")
+    assert {r["status"] for r in shorter.values()} == {"done"}
+    assert all(r["changed"] == {"end_us": [100000, 50000]} for r in shorter.values())
+    for name, r in shorter.items():
+        assert r["events"] < first[name]["events"]
+        assert len(events_of(out / name.replace(".npz", ".mcap"))["t"]) == r["events"]
+    assert main([*base, "--end-us", "50000", "--denoise", "stcf", "--quiet"]) == 0  # the table says what changed
+    printed = capsys.readouterr().out
+    assert "3 done (3 redone), 0 skipped" in printed
+    assert f"redone: {data / 'bar.npz'}: settings changed: --denoise (not given) -> stcf" in printed
+    assert printed.count("  redone  ") == 3
+    settings_of_bar = out / ".bar.mcap.settings.json"
+    settings_of_bar.unlink()  # an output made before settings were recorded (or by another command)
+    again = run("--end-us", "50000", "--denoise", "stcf")
+    assert again["bar.npz"]["redone"] == "no record of the settings it was made with"
+    assert {again[n]["status"] for n in ("ball.npz", "turntable.npz")} == {"skipped"}
+    os.utime(out / "ball.mcap", ns=(1, 1))  # changed since it was made (touched, copied over)
+    assert run("--end-us", "50000", "--denoise", "stcf")["ball.npz"]["redone"] == "the output changed after it was made"
+
+
+def test_frames_convert_and_eval_reruns_follow_their_settings(client, dataset, tmp_path, capsys):
+    """The same for `frames`, `convert` and `eval --out`: a changed flag makes the recordings again."""
+    data = tmp_path / "data"
+    shutil.copytree(dataset / "synthetic", data)
+    scheduler = ["--scheduler", client.scheduler.address, "--quiet"]
+    commands = {
+        "frames": (["frames", str(data), "--out", str(tmp_path / "frames"), "--framer", "fw", "--end-us", "100000",
+                    *scheduler], ["--window-us", "20000"], "--window-us"),
+        "convert": (["convert", str(data), str(tmp_path / "converted"), "--end-us", "100000", *scheduler],
+                    ["--to", "raw"], None),
+        "eval": (["eval", str(data), "--out", str(tmp_path / "eval"), "--ratios", "0.5", "--rates-hz", "--seeds", "1",
+                  "--methods", "baf", "--min-duration-s", "0.1", *scheduler], ["--methods", "stcf"], "--methods baf"),
+    }
+    for name, (argv, other, said) in commands.items():
+        assert main(argv) == 0, name
+        assert "3 done, 0 skipped" in capsys.readouterr().out, name
+        assert main(argv) == 0, name
+        assert "0 done, 3 skipped" in capsys.readouterr().out, name
+        if name == "convert":  # another format is another output; another --end-us is the same one again
+            other = ["--end-us", "60000"]
+            said = "--end-us 100000 -> 60000"
+        assert main([*argv, *other]) == 0, name
+        printed = capsys.readouterr().out
+        assert "3 done (3 redone), 0 skipped" in printed and said in printed, (name, printed)
 
 
 def test_an_output_folder_inside_the_input_tree_is_not_read_back(client, dataset, tmp_path, capsys):
@@ -261,7 +329,9 @@ def test_frames_many_writes_what_the_one_file_command_writes_and_a_rerun_skips(c
     assert main(argv) == 0
     assert "0 done, 3 skipped" in capsys.readouterr().out
     assert main([*argv, "--force"]) == 0
-    assert "3 done, 0 skipped" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "3 done (3 redone), 0 skipped" in printed and "settings changed" not in printed
+    assert printed.count(": --force") == 3
     assert main(["frames", str(dataset / "synthetic" / "*.npz"), *flags]) == 2  # several recordings need --out
     assert "--out FOLDER" in capsys.readouterr().err
 
@@ -280,7 +350,7 @@ def test_frames_many_leaves_nothing_for_a_recording_that_failed(client, dataset,
             "--window-us", "20000", "--quiet"]
     assert main(argv) == 1
     assert "bad.txt" in capsys.readouterr().err
-    assert sorted(p.name for p in out.iterdir()) == ["good", "good.frames.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".good.frames.json.settings.json", "good", "good.frames.json"]
     assert len(list((out / "good").glob("frame_*.png"))) > 5
 
 

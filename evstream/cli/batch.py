@@ -138,11 +138,13 @@ def _warm(work: Callable, suffix: str, params: dict) -> None:
 
 
 def table(results: list[batch.TaskResult]) -> str:
-    """One line per recording (events, classes, seconds, or the error), then the totals."""
+    """One line per recording (events, classes, seconds, or the error), then the totals; a recording made
+    again over an earlier output ("redone") says why below."""
     rows = [("recording", "status", "events", "signal", "background", "hot pixel", "s")]
     for r in results:
         c = r.classes or {}
-        rows.append((r.source, r.status, _n(r.events), _n(c.get("signal")), _n(c.get("background")),
+        status = "redone" if r.status == "done" and r.redone else r.status
+        rows.append((r.source, status, _n(r.events), _n(c.get("signal")), _n(c.get("background")),
                      _n(c.get("hot_pixel")), f"{r.seconds:.2f}" if r.status == "done" else ""))
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(v.ljust(w) if i < 2 else v.rjust(w) for i, (v, w) in enumerate(zip(row, widths)))
@@ -151,13 +153,37 @@ def table(results: list[batch.TaskResult]) -> str:
         if r.status == "failed" or (r.status == "interrupted" and r.error not in ("not started", "interrupted")
                                     and not r.error.startswith("stopped by")):  # ones that left a file aside
             lines.append(f"{r.status}: {r.source}: {r.error}")
+        elif r.status == "done" and r.redone:
+            lines.append(f"redone: {r.source}: {why_redone(r)}")
     done = [r for r in results if r.status == "done"]
     stopped = sum(r.status == "interrupted" for r in results)
-    lines.append(f"{len(done)} done, {sum(r.status == 'skipped' for r in results)} skipped (up to date; --force "
+    redone = sum(bool(r.redone) for r in done)
+    lines.append(f"{len(done)} done{f' ({redone} redone)' if redone else ''}, "
+                 f"{sum(r.status == 'skipped' for r in results)} skipped (up to date, same settings; --force "
                  f"redoes them), {sum(r.status == 'failed' for r in results)} failed"
                  + (f", {stopped} interrupted" if stopped else "") + "; "
                  f"{sum(r.events or 0 for r in done):,} events in {sum(r.seconds for r in done):.2f} task-seconds")
     return "\n".join(lines)
+
+
+def why_redone(r: batch.TaskResult) -> str:
+    """Why a recording was made again, its changed settings named as the flags that set them."""
+    if not r.changed:
+        return r.redone
+    said = []
+    for key, (before, now) in r.changed.items():
+        flag = "the task's function" if key == "work" else "--set" if key == "settings" else \
+            "--" + key.replace("_", "-")
+        said.append(f"{flag} {_value(before)} -> {_value(now)}")
+    return "settings changed: " + ", ".join(said)
+
+
+def _value(v) -> str:
+    if v is None:
+        return "(not given)"
+    if isinstance(v, list):
+        return " ".join(map(str, v)) if v else "(none)"
+    return str(v)
 
 
 def _n(v) -> str:
