@@ -24,7 +24,7 @@ import weakref
 from pathlib import Path
 
 __all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "check_not_input", "is_no_space",
-           "no_space_error", "partial_name", "reading"]
+           "no_space_error", "numbered_name", "partial_name", "reading"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
@@ -116,17 +116,29 @@ def partial_name(target, n: int = 0) -> Path:
     return target.with_name(f"{target.stem}{middle}{target.suffix}")
 
 
+def numbered_name(target, n: int) -> Path:
+    """`STEM.N.EXT` beside `target` (n = 0: the target itself): where an output that must not replace an
+    earlier file goes (`AtomicOutput(keep_existing=True)`)."""
+    target = Path(os.fspath(target))
+    return target if n == 0 else target.with_name(f"{target.stem}.{n}{target.suffix}")
+
+
 class AtomicOutput:
     """A temporary file `part` beside `target`; `commit()` renames it onto the target, `discard()` removes
     it (or keeps it, with `keep_partial`). As a context manager: commit on success, discard on error,
-    with a full disk said as one line naming the target.
+    with a full disk said as one line naming the target. `keep_existing`: the target is a name the
+    program chose, not the user: a file already there is left as it is and the output goes to the first
+    free `STEM.N.EXT` (`.target` then says where; `.taken` is the name that was in use).
 
         with AtomicOutput("out.mcap", inputs=["rec.raw"]) as part:
             write_everything_to(part)
     """
 
-    def __init__(self, target, inputs=(), *, keep_partial: bool = False, flag: str = "", sync: bool = True):
+    def __init__(self, target, inputs=(), *, keep_partial: bool = False, flag: str = "", sync: bool = True,
+                 keep_existing: bool = False):
         self.sync = sync  # flush the bytes to the disk before the rename (survives a power cut too)
+        self.keep_existing = keep_existing
+        self.taken: Path | None = None
         self.target = Path(os.fspath(target))
         self.inputs = [os.fspath(p) for p in inputs if p is not None]
         self.keep_partial = keep_partial
@@ -149,7 +161,10 @@ class AtomicOutput:
                     os.fsync(fd)  # the rename must not reach the disk before the bytes do
                 finally:
                     os.close(fd)
-            os.replace(self.part, self.target)
+            if self.keep_existing:
+                self._link_to_a_free_name()
+            else:
+                os.replace(self.part, self.target)
         except OSError as e:
             self.discard()
             if is_no_space(e):
@@ -157,6 +172,27 @@ class AtomicOutput:
             raise
         self.done = True
         return self.target
+
+    def _link_to_a_free_name(self) -> None:
+        """The whole output under the target's name or, when a file has it, the first free STEM.N.EXT: a hard
+        link never replaces a file (one made meanwhile by another process included)."""
+        wanted = self.target
+        for n in range(_MAX_PART_NAMES):
+            name = numbered_name(wanted, n)
+            try:
+                os.link(self.part, name)
+            except FileExistsError:
+                continue
+            except OSError:  # no hard links here: a rename onto a name free a moment ago
+                if os.path.lexists(name):
+                    continue
+                os.replace(self.part, name)
+            else:
+                self.part.unlink(missing_ok=True)
+            self.taken = wanted if n else None
+            self.target = name
+            return
+        raise OSError(f"{wanted}: {_MAX_PART_NAMES} files {wanted.stem}.N{wanted.suffix} are in the way; remove some")
 
     def set_aside(self) -> Path:
         """The run was cut short on purpose (Ctrl-C) and its output closed whole up to there: keep it under a

@@ -189,11 +189,11 @@ class _RrdFile:
     lines are off in the CLI, `evstream.cli`): said here as one OSError naming the file, nothing left at
     the target."""
 
-    def __init__(self, rec: rr.RecordingStream, target: str, inputs=()):
+    def __init__(self, rec: rr.RecordingStream, target: str, inputs=(), keep_existing: bool = False):
         from evstream.safe_write import AtomicOutput
 
         try:
-            self.output = AtomicOutput(target, inputs)
+            self.output = AtomicOutput(target, inputs, keep_existing=keep_existing)
         except OSError as e:  # a directory there, a folder not writable
             reason = str(e).removeprefix(f"{target}: ")
             raise OSError(f"{target}: cannot write the Rerun recording: {reason}") from None
@@ -290,9 +290,10 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
                 connect: str | None = None, bind: str = "127.0.0.1",
                 memory_limit: str = DEFAULT_MEMORY_LIMIT, grpc_port: int = DEFAULT_GRPC_PORT,
                 web_port: int = DEFAULT_WEB_PORT, application_id: str = "evstream",
-                log_dir: str | os.PathLike | None = None, inputs=()) -> RerunOutput:
+                log_dir: str | os.PathLike | None = None, inputs=(), keep_existing: bool = False) -> RerunOutput:
     """Open a recording stream for exactly one of `save`, `spawn`, `serve`, `connect` (`inputs`: files the
-    saved `.rrd` may not be)."""
+    saved `.rrd` may not be; `keep_existing`: `save` is a name the program chose, and a file there is left
+    as it is, the recording going to `STEM.N.rrd`: `finish` says where)."""
     chosen = [m for m, on in (("save", save), ("spawn", spawn), ("serve", serve), ("connect", connect)) if on]
     if len(chosen) != 1:
         raise ValueError(f"choose one Rerun output (save, spawn, serve or connect), got {chosen or 'none'}")
@@ -300,7 +301,7 @@ def open_output(*, save: str | None = None, spawn: bool = False, serve: bool = F
     log_dir = Path(log_dir) if log_dir else Path(os.environ.get("TMPDIR", "/tmp"))
     if save:
         Path(save).parent.mkdir(parents=True, exist_ok=True)
-        return RerunOutput(rec, "save", path=save, file=_RrdFile(rec, save, inputs))
+        return RerunOutput(rec, "save", path=save, file=_RrdFile(rec, save, inputs, keep_existing))
     if connect:
         _check_viewer(connect)
         rec.connect_grpc(connect)

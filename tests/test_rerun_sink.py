@@ -298,7 +298,37 @@ def test_cli_default_without_display_writes_rrd_and_says_how_to_open(tmp_path, m
     assert main(["replay", str(src), "--denoise", "none"]) == 0
     text = capsys.readouterr().out
     assert (tmp_path / "out" / "quiet.rrd").is_file()
-    assert "rerun out/quiet.rrd" in text
+    assert "rerun out/quiet.rrd" in text and "earlier" not in text
+
+
+def test_cli_default_rrd_keeps_an_earlier_one_and_says_so(tmp_path, monkeypatch, capsys):
+    """Without --save (no display), replay wrote out/STEM.rrd over an earlier one without a word: a user's
+    `--save out/STEM.rrd` of another pipeline was gone. The default name is the program's choice, so an
+    earlier file there is kept and the new one goes to out/STEM.1.rrd, .2, ..., said in the output;
+    --save names a file the user wants replaced."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    from evstream.sources import native
+
+    src = tmp_path / "rec.npz"
+    native.save(src, concat([classified(2_000, seed=7)]).replace(cls=None))
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", str(src), "--denoise", "stcf", "--save", "out/rec.rrd"]) == 0
+    earlier = (tmp_path / "out" / "rec.rrd").read_bytes()
+    capsys.readouterr()
+    for n in (1, 2):
+        assert main(["replay", str(src), "--denoise", "none"]) == 0
+        text = capsys.readouterr().out
+        assert (tmp_path / "out" / "rec.rrd").read_bytes() == earlier
+        assert f"wrote out/rec.{n}.rrd" in text and f"rerun out/rec.{n}.rrd" in text
+        assert "out/rec.rrd (an earlier file) is left as it was; --save out/rec.rrd would replace it" in text
+        assert read_rrd(tmp_path / "out" / f"rec.{n}.rrd")
+    assert main(["replay", str(src), "--denoise", "none", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (summary["rrd"], summary["kept"]) == ("out/rec.3.rrd", "out/rec.rrd")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["rec.1.rrd", "rec.2.rrd", "rec.3.rrd", "rec.rrd"]
+    assert main(["replay", str(src), "--denoise", "none", "--save", "out/rec.rrd"]) == 0  # asked for: replaced
+    assert (tmp_path / "out" / "rec.rrd").read_bytes() != earlier
 
 
 def test_cli_two_outputs_is_a_usage_error(tmp_path, capsys):

@@ -79,15 +79,15 @@ def cmd_replay(args) -> int:
     source = open_recording(args.source, args)
     pipeline = pipeline_from_args(args, source)
     attach_framer(pipeline, args)
-    save, spawn = args.save, args.spawn
+    save, spawn, chosen = args.save, args.spawn, False
     if not outputs:  # a desktop viewer where there is a display, else a file
         if has_display():
             spawn = True
-        else:
-            save = str(Path("out") / (Path(args.source).stem + ".rrd"))
+        else:  # a name the user did not give: an earlier file of that name is kept (out/STEM.1.rrd, ...)
+            save, chosen = str(Path("out") / (Path(args.source).stem + ".rrd")), True
     created = create_folder(Path(save).parent) if save else ""
     out = open_output(save=save, spawn=spawn, serve=args.serve, connect=args.viewer, bind=args.bind,
-                      memory_limit=args.memory_limit)
+                      memory_limit=args.memory_limit, inputs=[args.source], keep_existing=chosen)
     try:
         geometry = pipeline.out_geometry(source.geometry)  # after the transforms (crop, rotate, downsample)
         sink = RerunSink(out.rec, geometry=geometry, framer=getattr(pipeline.framer, "kind", None),
@@ -111,6 +111,7 @@ def cmd_replay(args) -> int:
         written = out.finish(interrupted=bool(stopped_by))  # cut short: set aside, an older SAVE left as it was
         summary = {**stats.as_dict(), "points_logged": sink.points_logged, "points_dropped": sink.points_dropped,
                    **lag.as_dict(), "output": out.mode, "rrd": written, "partial": bool(save and stopped_by),
+                   "kept": str(out.file.output.taken) if out.file is not None and out.file.output.taken else None,
                    "grpc_url": out.grpc_url,
                    "web_url": out.web_url, "stopped_by": stopped_by, "created_folder": created or None}
         if args.json:
@@ -135,6 +136,9 @@ def cmd_replay(args) -> int:
                 print(f"wrote {written}{folder_note(created)} — open it with:  {rerun_command()} "
                       f"{shlex.quote(written)}   (or: evstream replay {shlex.quote(args.source)} --spawn / --serve; "
                       "the .rrd is the viewer's)")
+                if summary["kept"]:
+                    print(f"  {save} (an earlier file) is left as it was; --save {shlex.quote(save)} would "
+                          "replace it")
         sys.stdout.flush()
         if stopped_by:
             where = (f"; {save} {'left as it was' if existed else 'not written'}; the recording of the events up "
