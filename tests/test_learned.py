@@ -3,6 +3,7 @@ invariants, the model file (round trip, damaged and foreign files refused), and 
 
 import json
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -221,6 +222,36 @@ def test_shipped_model_keeps_most_of_clean_real_recordings_it_never_saw(real_dat
     events = api.read(real_data / name)
     kept = build("stage", {"kind": "learned"})(events.replace(label=None, cls=None)).cls == NoiseClass.SIGNAL
     assert kept.mean() > least
+
+
+def test_train_says_where_it_is_when_its_output_is_piped(tmp_path):
+    """`evstream train ... 2>&1 | tee log` printed nothing until the model was written (a minute on real
+    recordings): progress went only to a terminal. Piped, each step is a line on stderr as it happens:
+    the first arrives while the model is not written yet."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "m.npz"
+    proc = subprocess.Popen([sys.executable, "-m", "evstream.cli", "train", "recordings/bar.npz", "--out", str(out),
+                             "--events-per-stream", "3000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=Path(__file__).resolve().parents[1])
+    try:
+        first = proc.stderr.readline()
+        assert first.startswith("evstream train: ") and "reading 1 recording(s)" in first, first
+        assert not out.exists()  # said before the work, not after
+        rest = proc.communicate(timeout=600)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and out.exists()
+    lines = [first.rstrip("\n"), *rest.splitlines()]
+    assert "\r" not in rest and "\x1b" not in rest  # plain lines for a log, not a terminal's bar
+    assert all(line.startswith("evstream train: ") for line in lines), lines
+    assert sum(" seed " in line for line in lines) == 6 and "fitting logistic" in lines[-1], lines
+    quiet = subprocess.run([sys.executable, "-m", "evstream.cli", "train", "recordings/bar.npz", "--out",
+                            str(tmp_path / "q.npz"), "--events-per-stream", "3000", "--quiet"], capture_output=True,
+                           text=True, cwd=Path(__file__).resolve().parents[1])
+    assert quiet.returncode == 0 and quiet.stderr == ""
 
 
 def test_train_command_writes_a_model_the_pipeline_uses(tmp_path):

@@ -24,6 +24,26 @@ def _fractions(text: str) -> tuple[float, ...]:
     return fracs
 
 
+class Steps:
+    """Training's progress on stderr, one step at a time: on a terminal one line rewritten in place; else
+    (a pipe, a log, a CI job) a line per step with the seconds since the start, flushed as it comes,
+    so that a minute of feature computation does not look like a hung command."""
+
+    def __init__(self, t0: float):
+        self.t0 = t0
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, message: str) -> None:
+        if self.tty:
+            print(f"\r{message}\x1b[K", end="", file=sys.stderr, flush=True)
+        else:
+            print(f"evstream train: {time.perf_counter() - self.t0:.0f} s: {message}", file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        if self.tty:
+            print(file=sys.stderr)
+
+
 def cmd_train(args) -> int:
     from ..denoise.learned import train
 
@@ -45,17 +65,22 @@ def cmd_train(args) -> int:
         raise UsageError(f"--out {out}: a model file ends in .npz")
     if not out.parent.is_dir():
         raise UsageError(f"--out {out}: folder {out.parent} does not exist")
+    t0 = time.perf_counter()
+    say = None if args.quiet else Steps(t0)
+    if say:
+        say(f"reading {len(args.recordings)} recording(s)")
     recordings = read_recordings(args.recordings, args.min_duration_s, "evstream train", strict=True)
     if not recordings:
         raise UsageError("no recording to train on")
     sources = {Path(p).stem: p for p in args.recordings}
-    say = (lambda m: print(f"\r{m}\x1b[K", end="", file=sys.stderr)) if sys.stderr.isatty() else None
-    t0 = time.perf_counter()
+    if say:
+        say(f"{len(recordings)} recording(s) read; features under {len(train.TRAIN_CONDITIONS)} noise conditions "
+            f"each{' and thinned copy' if args.thin else ''}, then the fit")
     model = train.train(recordings, kind=args.kind, hidden=args.hidden, keep=args.keep, seed=args.seed,
                         per_stream=args.events_per_stream, sources=sources, thin=args.thin,
                         without=args.without, progress=say)
     if say:
-        print(file=sys.stderr)
+        say.done()
     model.save(out)
     held = model.meta.get("held_out_keep_at_training_keep")
     print(f"wrote {out}: {model.meta['kind']} model on {len(recordings)} recording(s), "
@@ -84,6 +109,7 @@ def add_parser(sub) -> None:
     p.add_argument("--without", type=lambda t: [w for w in t.split(",") if w], default=[], metavar="F,F...",
                    help="features the score leaves out (docs/learned.md: the shipped model leaves out the DC ones)")
     p.add_argument("--min-duration-s", type=float, default=0.0, help="skip shorter recordings")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=cmd_train)
 
 
