@@ -44,6 +44,7 @@ import numpy as np
 
 from ...jit import njit
 from ...nowrap import ix
+from ..prefetch import prefetch
 from ..rowsum import column_sum, padded_map, row_add
 from .neighbours import SUPPORT_TICKS, nb8_support
 
@@ -65,6 +66,7 @@ AGE_CELLS = 4096       # ... up to 4096 · 64 µs = 262 ms
 LOG_CELLS = 1 << 16    # log1p table for counts
 FAR_TICKS = 1 << 20    # "never" and anything older: far past every window and cap
 REBASE_TICKS = 1 << 30  # the 31-bit tick field is rebased (an O(W·H) pass) once every ~4.8 h of stream
+PREFETCH_EVENTS = 4    # each event asks for the word and bitmap rows of the event this far ahead
 HOT_SCORE = -1e9       # the score of an event a hot-pixel rule rejects
 DC_MARGIN = 51         # the DC rule: 8 · DC_own - Σ DC_nb > 51 bins, i.e. DC_own - mean DC_nb > 0.1
 
@@ -176,6 +178,11 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 if not all_live and codes[ix(i)] != 0:
                     i += 1
                     continue
+                ahead = min(i + PREFETCH_EVENTS, n - 1)  # its upper left neighbour
+                row = (np.intp(y[ix(ahead)]) + R - 1) * wp + np.intp(x[ix(ahead)]) + R - 1
+                for k in range(3):
+                    prefetch(word, row + k * wp)
+                    prefetch(bins, row + k * wp)
                 ti = t[ix(i)]
                 if started == 0:
                     base = (ti >> 4) - FAR_TICKS
