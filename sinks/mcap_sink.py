@@ -50,6 +50,8 @@ import mcap.writer
 import numpy as np
 import zstandard
 from evstream.sinks.colours import CLASS_COLOURS
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
 from evstream.codecs.event_packet import DATATYPE, HEADER_MSGDEFS, MSGDEF, encode_packet
@@ -70,6 +72,7 @@ CLASS_NAMES = {NoiseClass.SIGNAL: "signal", NoiseClass.BACKGROUND: "background",
                NoiseClass.HOT_PIXEL: "hot_pixel"}
 _CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _NEVER = 1 << 62  # mcap's own chunk_size: we close chunks ourselves
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # an MCAP Message record up to its data: opcode, length, channel, seq, times
 
 
 class _Zstd:
@@ -229,28 +232,6 @@ class _EventTopic:
         return taken
 
 
-def grid_cells(parts: list[tuple[np.ndarray, ...]], packet_us: int) -> list[tuple[int, tuple[np.ndarray, ...]]]:
-    """The events of `parts` ((t, x, y, p) in stream order) by cell of the packet grid (cell = t // packet_us):
-    (cell, (t, x, y, p)) in order, one entry per cell — views, but for a cell spread over several parts
-    (joined once)."""
-    cells: list[tuple[int, list[tuple[np.ndarray, ...]]]] = []
-    for part in parts:
-        t = part[0]
-        if not len(t):
-            continue
-        cell = t // packet_us
-        bounds = [0, *(np.flatnonzero(cell[1:] != cell[:-1]) + 1).tolist(), len(t)]
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            here = int(cell[a])
-            piece = tuple(arr[a:b] for arr in part)
-            if cells and cells[-1][0] == here:  # the cell began in an earlier part
-                cells[-1][1].append(piece)
-            else:
-                cells.append((here, [piece]))
-    return [(here, pieces[0] if len(pieces) == 1 else tuple(np.concatenate(column) for column in zip(*pieces)))
-            for here, pieces in cells]
-
-
 class McapSink:
     """Writes every batch into an MCAP file (see the module docstring for channels and guarantees).
 
@@ -258,6 +239,8 @@ class McapSink:
     `frames`: write the framer's frames. `points`: a PointCloud per batch, at most `point_budget` points.
     `metadata`: provenance written at the start (values JSON-encoded when not strings).
     """
+
+    _ONE_BY_ONE = False  # packets through mcap's `Writer.add_message` one at a time (what the tests compare with)
 
     def __init__(self, path, *, camera: str = "camera", encoding: str = "evt3", keep_noise: bool = False,
                  frames: bool = True, frame_format: str = "foxglove", points: bool = False,
@@ -396,36 +379,77 @@ class McapSink:
     def _emit_cells(self, watermark: int) -> None:
         """Write the packets of every grid cell that the watermark has closed: cell by cell, in each cell the
         topics in order, a cell of a topic in packets of at most `max_packet_events`. (One pass per batch:
-        each topic's closed events are taken at once and cut at the cell edges, then merged by cell.)"""
+        each topic's closed events are taken at once, cut at the cell edges and encoded in one call, then
+        the packets merged by cell and added to the file's chunk at once.)"""
         cell_end = (watermark // self.packet_us) * self.packet_us  # cells ending at or before this are closed
-        out = []  # (cell, topic's rank, class, topic, events)
+        rows = []  # (cell, topic's rank, class, topic, packet, events)
         for rank, (c, topic) in enumerate(self._event_topics.items()):
             parts = topic.take_before(cell_end)
-            if parts:
-                out += [(cell, rank, c, topic, ev) for cell, ev in grid_cells(parts, self.packet_us)]
-        if len(self._event_topics) > 1:
-            out.sort(key=lambda row: row[:2])
-        step = self.max_packet_events
-        for _, _, c, topic, ev in out:
-            if len(ev[0]) <= step:
-                self._write_packet(c, topic, *ev)
+            if not parts:
                 continue
-            for a in range(0, len(ev[0]), step):
-                self._write_packet(c, topic, *(arr[a : a + step] for arr in ev))
+            t, x, y, p = parts[0] if len(parts) == 1 else tuple(np.concatenate(column) for column in zip(*parts))
+            cells = t // self.packet_us
+            bounds = np.flatnonzero(cells[1:] != cells[:-1]) + 1
+            bounds = np.concatenate(([0], bounds, [len(t)]))
+            if (np.diff(bounds) > self.max_packet_events).any():  # a cell too full for one packet: cut it
+                bounds = np.concatenate([np.arange(a, b, self.max_packet_events)
+                                         for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist())] + [[len(t)]])
+            if topic.encoder is None:
+                g = self.geometry
+                topic.encoder = PacketEncoder(width=g.width, height=g.height, encoding=self.encoding,
+                                              frame_id=self.camera)
+            packets = topic.encoder.encode_many(t, x, y, p, bounds)
+            rows += [(cell, rank, c, topic, packet, n) for cell, packet, n in
+                     zip(cells[bounds[:-1]].tolist(), packets, np.diff(bounds).tolist())]
+        if len(self._event_topics) > 1:
+            rows.sort(key=lambda row: row[:2])  # stable: a cell's packets of one topic stay in order
+        if rows:
+            self._add_packets(rows)
 
-    def _write_packet(self, c: NoiseClass, topic: _EventTopic, t, x, y, p) -> None:
-        if topic.encoder is None:
-            g = self.geometry
-            topic.encoder = PacketEncoder(width=g.width, height=g.height, encoding=self.encoding,
-                                          frame_id=self.camera)
-        packet = topic.encoder.encode(t, x, y, p)
-        data = encode_packet(packet)
-        self._writer.add_message(topic.channel_id, log_time=packet.stamp_ns, data=data,
-                                 publish_time=packet.stamp_ns, sequence=packet.seq & 0xFFFFFFFF)
-        self.packets += 1
-        self.messages += 1
-        self.events_written[c] += len(t)
-        self._pending_bytes += len(data)
+    def _add_packets(self, rows) -> None:
+        """Add the packets to the chunk in progress as mcap's `Writer.add_message` one by one would (same
+        records, message index and statistics), in one write: ~1 µs a packet instead of ~10."""
+        w = self._writer
+        stats = getattr(w, "_Writer__statistics", None)
+        chunk = getattr(w, "_Writer__chunk_builder", None)
+        buffer = getattr(getattr(chunk, "record_writer", None), "_buffer", None)
+        pieces = []
+        one_by_one = self._ONE_BY_ONE or buffer is None or stats is None  # another mcap: its own way
+        offset = None if one_by_one else buffer.tell()
+        for _, _, c, topic, packet, n in rows:
+            data = encode_packet(packet)
+            t_ns = packet.stamp_ns
+            if one_by_one:
+                w.add_message(topic.channel_id, log_time=t_ns, data=data, publish_time=t_ns,
+                              sequence=packet.seq & 0xFFFFFFFF)
+            else:
+                ch = topic.channel_id
+                pieces += (_MESSAGE_HEAD.pack(Opcode.MESSAGE, 22 + len(data), ch, packet.seq & 0xFFFFFFFF,
+                                              t_ns, t_ns), data)
+                if stats.message_count == 0:
+                    stats.message_start_time = t_ns
+                else:
+                    stats.message_start_time = min(t_ns, stats.message_start_time)
+                stats.message_end_time = max(t_ns, stats.message_end_time)
+                stats.channel_message_counts[ch] += 1
+                stats.message_count += 1
+                if chunk.num_messages == 0:
+                    chunk.message_start_time = t_ns
+                else:
+                    chunk.message_start_time = min(chunk.message_start_time, t_ns)
+                chunk.message_end_time = max(chunk.message_end_time, t_ns)
+                index = chunk.message_indices.get(ch)
+                if not index:
+                    index = chunk.message_indices[ch] = MessageIndex(channel_id=ch, records=[])
+                index.records.append((t_ns, offset))
+                chunk.num_messages += 1
+                offset += 31 + len(data)
+            self.packets += 1
+            self.messages += 1
+            self.events_written[c] += n
+            self._pending_bytes += len(data)
+        if pieces:
+            buffer.write(b"".join(pieces))
 
     def _write_frame(self, frame: Frame) -> None:
         img = render_mono8(frame)

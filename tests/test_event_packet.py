@@ -172,6 +172,39 @@ def test_evt3_packets_decode_alone_and_as_one_stream(ev, n_packets, seed):
         assert stream.counters["time_back"] == 0
 
 
+@given(event_arrays(max_x=2047, span_us=60_000_000), st.integers(1, 12), st.integers(0, 99), st.booleans(),
+       st.sampled_from([0, 5, 2047]))
+def test_packets_encoded_at_once_are_those_encoded_one_by_one(ev, n_packets, seed, continued, bad_x):
+    """`encode_many` (one kernel call for a batch's EVT3 packets) makes the packets `encode` makes one after
+    the other, byte for byte, continuing the clock from where the previous batch left it; an event EVT3
+    cannot carry (x >= 2048) is refused with `encode`'s words, the packets before it made."""
+    t, x, y, p = ev
+    if not len(t):
+        return
+    if bad_x:
+        x = x.copy()
+        x[len(x) // 2] = 2048
+    bounds = np.unique(np.concatenate([[0, len(t)], np.random.default_rng(seed).integers(1, len(t) + 1, n_packets)]))
+    one, many = packets.PacketEncoder(width=2048, height=2048), packets.PacketEncoder(width=2048, height=2048)
+    if continued:  # a previous batch left the clock earlier
+        one.encode(t[:1] - 5_000_000 if t[0] >= 5_000_000 else t[:1], x[:1] % 2048, y[:1], p[:1])
+        many.encode_many(t[:1] - 5_000_000 if t[0] >= 5_000_000 else t[:1], x[:1] % 2048, y[:1], p[:1], [0, 1])
+    want, error = [], None
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        try:
+            want.append(encode_packet(one.encode(t[a:b], x[a:b], y[a:b], p[a:b])))
+        except ValueError as e:
+            error = str(e)
+            break
+    if error is None:
+        assert [encode_packet(pk) for pk in many.encode_many(t, x, y, p, bounds)] == want
+        assert (many.seq, many._time_high) == (one.seq, one._time_high)
+    else:
+        with pytest.raises(ValueError) as raised:
+            many.encode_many(t, x, y, p, bounds)
+        assert str(raised.value) == error
+
+
 def test_faery_decodes_our_packets_identically(tmp_path):
     import faery  # declared (dev) dependency: a broken install fails
     rng = np.random.default_rng(5)

@@ -4,6 +4,7 @@ files with the independent readers other tools use (mcap, mcap_ros2, faery, Reru
 from __future__ import annotations
 
 import dataclasses
+import re
 import subprocess
 import sys
 import warnings
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 from evstream.sinks.mcap_sink import McapSink, topics
 from evstream.sources import mcap_log, open_source
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -382,19 +383,28 @@ def test_tick_closes_the_chunk_when_the_stream_goes_quiet(tmp_path):
     assert path.exists() and not part.exists()
 
 
-@given(seed=st.integers(0, 10_000), n=st.integers(1, 500), packet_us=st.sampled_from([1, 3, 50, 1000]))
-def test_grid_cells_are_the_events_of_each_cell_in_order(seed, n, packet_us):
-    """The sink's cutting of waiting parts into grid cells: per cell (ascending) its events in stream order,
-    whatever the parts (cells spread over many parts, parts of one event)."""
-    from evstream.sinks.mcap_sink import grid_cells
-
-    s = random_stream(seed, n, G, t0_us=int(np.random.default_rng(seed).integers(-10**6, 10**6)))
-    parts = [(c.t, c.x, c.y, c.p) for c in split(s, random_bounds(seed, n))]
-    got = grid_cells(parts, packet_us)
-    cells = s.t // packet_us
-    want = sorted(set(cells.tolist()))
-    assert [cell for cell, _ in got] == want
-    for cell, ev in got:
-        sel = cells == cell
-        for arr, full in zip(ev, (s.t, s.x, s.y, s.p)):
-            np.testing.assert_array_equal(arr, full[sel])
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 3000), packet_us=st.sampled_from([1, 37, 1000, 10_000]),
+       keep_noise=st.booleans(), max_events=st.sampled_from([1, 5, 200_000]), encoding=st.sampled_from(["evt3", "mono"]),
+       gap_us=st.sampled_from([0, 1 << 24, 40 << 24]))
+def test_packets_added_at_once_are_the_file_mcap_writes_one_by_one(tmp_path_factory, seed, n, packet_us, keep_noise,
+                                                                    max_events, encoding, gap_us):
+    """The sink encodes a batch's packets in one call and adds them to the chunk in one write; the file is
+    byte for byte the one mcap's `Writer.add_message` makes taking them one at a time (records, message
+    indexes, statistics, chunking), whatever the chunking of the stream, cells cut by `max_packet_events`,
+    gaps of whole 24-bit clock wraps."""
+    folder = tmp_path_factory.mktemp("bulk")
+    s = classified(seed, n)
+    s = s.replace(t=s.t + np.where(np.arange(n) >= n // 2, gap_us, 0))  # a silence in the middle
+    chunks = split(s, random_bounds(seed, n))
+    files = []
+    for one_by_one in (False, True):
+        out = folder / f"{one_by_one}.mcap"
+        sink = McapSink(out, keep_noise=keep_noise, frames=False, packet_us=packet_us, max_packet_events=max_events,
+                        encoding=encoding, flush_s=1e9, chunk_bytes=4 << 10, geometry=G)
+        sink._ONE_BY_ONE = one_by_one
+        for chunk in chunks:
+            sink.write(Batch(chunk, [], RunStats()))
+        sink.close(None)  # no run statistics: no wall time in the file
+        files.append(re.sub(rb"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", b"T" * 25, out.read_bytes()))
+    assert files[0] == files[1]

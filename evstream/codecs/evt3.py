@@ -454,6 +454,48 @@ def _encode_kernel(t, x, y, p, out, state, last_t):
     return k
 
 
+@njit(cache=True, nogil=True)
+def _encode_packets_kernel(t, x, y, p, bounds, high, out, ends):
+    """Packets j = events bounds[j]:bounds[j+1], each on the sensor clock as `packets.evt3_sensor_clock`
+    writes one: a TIME_HIGH word where the previous packet left the clock (`high`: its absolute time-high,
+    -1 before the first packet: the first event's own), then the events from there. Word ends in `ends`.
+    Returns the number of packets written; fewer when packet j cannot be (a time before 0 or going back,
+    x or y >= 2048, p > 1, or not room enough in `out` for its worst case): the caller then writes from j
+    one by one, which says why. One call for a batch's packets: the GIL is given up once, not per packet."""
+    m = len(bounds) - 1
+    k = 0
+    state = np.empty(4, np.int64)
+    for j in range(m):
+        a = bounds[ix(j)]
+        b = bounds[ix(j + 1)]
+        t0 = t[ix(a)]
+        if t0 < 0:
+            return j
+        h = t0 >> 12 if high < 0 else high
+        if h > t0 >> 12:
+            return j
+        t_last = t[ix(b - 1)]
+        wraps = (t_last >> 24) - ((h << 12) >> 24)
+        if wraps > MAX_WRAPS_PER_CALL:
+            return j
+        ramp = 5 * (wraps + 1) + ((t_last >> 12) - h) // _MAX_HIGH_STEP + 2
+        if k + 1 + 4 * (b - a) + ramp > len(out):
+            return j
+        out[ix(k)] = 0x8000 | (h & 0xFFF)
+        k += 1
+        state[0] = 1
+        state[1] = h
+        state[2] = -1
+        state[3] = -1
+        n = _encode_kernel(t[a:b], x[a:b], y[a:b], p[a:b], out[k:], state, h << 12)
+        if n < 0:
+            return j
+        k += n
+        ends[ix(j)] = k
+        high = t_last >> 12
+    return m
+
+
 class Evt3Encoder:
     """Streaming EVT3 encoder: successive `encode` calls continue one stream (time base, row).
 

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import struct
 
+import numpy as np
+
 from . import evt3, mono
 from .event_packet import EventPacket, PacketError
 
@@ -76,6 +78,7 @@ class PacketEncoder:
         self.seq = 0
         self._time_high: int | None = None  # where the last EVT3 packet left the clock
         self._evt3 = evt3.Evt3Encoder()
+        self._scratch = np.empty(0, np.uint16)  # encode_many's words, reused
 
     def encode(self, t, x, y, p) -> EventPacket:
         if len(t) == 0:
@@ -90,6 +93,52 @@ class PacketEncoder:
                              seq=self.seq, time_base=t0_ns, stamp_ns=t0_ns, frame_id=self.frame_id)
         self.seq += 1
         return packet
+
+    def encode_many(self, t, x, y, p, bounds) -> list[EventPacket]:
+        """The packets of events bounds[j]:bounds[j+1] (each at least one event), as `encode` one after the
+        other would make them, byte for byte; EVT3 payloads in one kernel call (views of one buffer), so a
+        batch of packets gives up the GIL once. An event EVT3 cannot carry raises as `encode` does, the
+        packets before it made."""
+        bounds = np.ascontiguousarray(bounds, np.int64)
+        m = len(bounds) - 1
+        if self.encoding != "evt3" or m < 1 or len(t) == 0:
+            return [self.encode(t[a:b], x[a:b], y[a:b], p[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+        t = np.ascontiguousarray(t, np.int64)
+        x = np.ascontiguousarray(x, np.uint16)
+        y = np.ascontiguousarray(y, np.uint16)
+        p = np.ascontiguousarray(p, np.uint8)
+        # room for each packet's worst case (Evt3Encoder's): 4 words an event, the TIME_HIGH steps from where
+        # the clock was (wraps 5 words each) and the opening word
+        last_high = t[bounds[1:] - 1] >> 12
+        high = np.empty(m, np.int64)
+        high[0] = int(t[bounds[0]]) >> 12 if self._time_high is None else self._time_high
+        high[1:] = last_high[:-1]
+        wraps = np.maximum((last_high >> 12) - (high >> 12), 0)
+        ramp = np.maximum(5 * (wraps + 1) + (last_high - high) // evt3._MAX_HIGH_STEP + 2, 0)
+        if wraps.max() > evt3.MAX_WRAPS_PER_CALL:  # refused one by one, with the reason
+            return [self.encode(t[a:b], x[a:b], y[a:b], p[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+        room = 4 * int(bounds[-1] - bounds[0]) + m + int(ramp.sum())
+        if len(self._scratch) < room:
+            self._scratch = np.empty(room, np.uint16)
+        ends = np.empty(m, np.int64)
+        done = evt3._encode_packets_kernel(t, x, y, p, bounds, np.int64(-1 if self._time_high is None
+                                                                          else self._time_high), self._scratch, ends)
+        data = self._scratch[: ends[done - 1] if done else 0].tobytes()
+        view = memoryview(data)
+        starts = [0, *ends[: done - 1].tolist()] if done else []
+        packets = []
+        for j, (a, w0, w1) in enumerate(zip(bounds[:done].tolist(), starts, ends[:done].tolist())):
+            t0_ns = int(t[a]) * _NS_PER_US
+            packets.append(EventPacket(events=view[2 * w0 : 2 * w1], encoding="evt3", width=self.width,
+                                       height=self.height, seq=self.seq + j, time_base=t0_ns, stamp_ns=t0_ns,
+                                       frame_id=self.frame_id))
+        if done:
+            self.seq += done
+            self._evt3.events_in += int(bounds[done] - bounds[0])  # an error later names the event as `encode`
+            self._time_high = int(t[bounds[done] - 1]) >> 12
+        for a, b in zip(bounds[done:-1].tolist(), bounds[done + 1 :].tolist()):  # what the kernel left: one by one
+            packets.append(self.encode(t[a:b], x[a:b], y[a:b], p[a:b]))
+        return packets
 
 
 def to_packet(t, x, y, p, *, width: int, height: int, encoding: str = "evt3", seq: int = 0,
