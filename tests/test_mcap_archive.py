@@ -385,8 +385,8 @@ def test_tick_closes_the_chunk_when_the_stream_goes_quiet(tmp_path):
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), n=st.integers(1, 3000), packet_us=st.sampled_from([1, 37, 1000, 10_000]),
-       keep_noise=st.booleans(), max_events=st.sampled_from([1, 5, 200_000]), encoding=st.sampled_from(["evt3", "mono"]),
-       gap_us=st.sampled_from([0, 1 << 24, 40 << 24]))
+       keep_noise=st.booleans(), max_events=st.sampled_from([1, 5, 200_000]),
+       encoding=st.sampled_from(["evt3", "mono"]), gap_us=st.sampled_from([0, 1 << 24, 40 << 24]))
 def test_packets_added_at_once_are_the_file_mcap_writes_one_by_one(tmp_path_factory, seed, n, packet_us, keep_noise,
                                                                     max_events, encoding, gap_us):
     """The sink encodes a batch's packets in one call and adds them to the chunk in one write; the file is
