@@ -1,4 +1,5 @@
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,13 @@ for name, examples in (("default", 25), ("thorough", 400), ("mutation", 10)):
                               suppress_health_check=[HealthCheck.too_slow],
                               phases=[p for p in Phase if name != "mutation" or p is not Phase.shrink])
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+
+# The tests that press Ctrl-C (SIGINT) on a command expect what a terminal gives it. A shell that starts
+# `make test &` in the background sets SIGINT to ignored, and an ignored signal stays ignored across
+# exec: every command the tests start would then shrug off its Ctrl-C. A handled signal is reset to the
+# default at exec, so with Python's own handler here the commands start as from a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def real_data_skip_reason() -> str:
