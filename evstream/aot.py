@@ -3,11 +3,13 @@ without numba (evstream.jit).
 
     python -m evstream.aot          # make .venv/.installed runs it; a few minutes on a cold numba cache
 
-Which kernels, for which argument types: those the commands call on a small synthetic recording — `archive
+Which kernels, for which argument types: those the commands call on small synthetic recordings — `archive
 --denoise paper` of a .raw and a .npz, `replay --denoise paper --save`, `replay --framer fw --save`
-(`make demo`), `convert` both ways — run here under numba's JIT; each (kernel, closure values, argument
-types) seen from Python is exported with numba.pycc, for this machine's CPU (as the JIT compiles),
-releasing the GIL as `nogil` kernels do. The
+(`make demo`), `convert` both ways; `archive` of an EVT2 .raw of a 640x480 sensor (the kernels'
+variants for maps larger than the L2 cache, `far`, which every sensor from 640x480 up uses), of a DAT
+and an N-MNIST file, `archive --denoise learned`, `convert --evt 2` — run here under numba's JIT; each
+(kernel, closure values, argument types) seen from Python is exported with numba.pycc, for this
+machine's CPU (as the JIT compiles), releasing the GIL as `nogil` kernels do. The
 index `evstream/_aot.json` maps kernel keys and argument types to the module's functions and records the
 size and time of every source file: after an edit the module is ignored (numba compiles, as without
 it) until this is run again. Other kernels, options or types are compiled by numba as before.
@@ -35,8 +37,15 @@ COMMANDS = (
     ["convert", "{raw}", "{out}/c.raw", "-q"],
     ["convert", "{npz}", "{out}/d.raw", "-q"],
     ["replay", "{npz}", "--framer", "fw", "--save", "{out}/f.rrd", "-q"],  # make demo, README's first command
+    ["archive", "{vga_evt2}", "{out}/g.mcap", "--denoise", "paper", "-q"],  # EVT2; 640x480 and up: `far` kernels
+    ["replay", "{vga_evt2}", "--denoise", "paper", "--save", "{out}/h.rrd", "-q"],
+    ["archive", "{dat}", "{out}/i.mcap", "--denoise", "paper", "-q"],
+    ["archive", "{nmnist}", "{out}/j.mcap", "--denoise", "paper", "-q"],
+    ["archive", "{npz}", "{out}/k.mcap", "--denoise", "learned", "-q"],
+    ["convert", "{npz}", "{out}/l.raw", "--evt", "2", "-q"],
 )
-OPTIONS = {"cache", "nogil", "inline"}  # kernels compiled with other numba options stay with the JIT
+RECORDINGS = ("npz", "raw", "vga_evt2", "dat", "nmnist")  # what COMMANDS' fields name (`recordings`)
+OPTIONS = {"cache", "nogil", "inline", "fastmath"}  # kernels compiled with other numba options stay with the JIT
 
 
 def arg_key(ty):
@@ -54,19 +63,40 @@ def arg_key(ty):
     return None
 
 
+def recordings(folder: Path) -> dict[str, Path]:
+    """Small synthetic recordings in `folder`, one per field of COMMANDS: the turntable (346x260) as .npz and
+    EVT3 .raw, as a 640x480 EVT2 .raw, a DAT file (304x240) and an N-MNIST binary (34x34)."""
+    from . import noise, synth
+    from .events import Geometry
+
+    def scene(width: int, height: int):
+        events = synth.scene("turntable", Geometry(width, height), duration_us=300_000, seed=1)
+        return noise.inject(events, noise.NoiseSpec(noise_ratio=0.5), seed=2, t_start_us=0, t_stop_us=300_000)
+
+    from .sources import dat, native, nmnist, prophesee_raw
+
+    paths = {name: folder / f"rec-{name}{ext}" for name, ext in
+             (("npz", ".npz"), ("raw", ".raw"), ("vga_evt2", ".raw"), ("dat", ".dat"), ("nmnist", ".bin"))}
+    davis = scene(346, 260)
+    native.save(paths["npz"], davis)
+    prophesee_raw.save(paths["raw"], davis, Geometry(346, 260))
+    prophesee_raw.save(paths["vga_evt2"], scene(640, 480), Geometry(640, 480), version="evt2")
+    dat.save(paths["dat"], scene(304, 240))
+    nmnist.save(paths["nmnist"], scene(34, 34))
+    return paths
+
+
 def record(folder: Path) -> list[jit.Kernel]:
-    """Run the commands on a small recording in `folder`; the kernels they called from Python."""
+    """Run the commands on small recordings in `folder`; the kernels they called from Python."""
     from .cli import main
 
-    npz, raw = folder / "rec.npz", folder / "rec.raw"
-    env = dict(os.environ, EVSTREAM_AOT="0")
-    subprocess.run([sys.executable, "-m", "evstream.cli", "synth", "turntable", str(npz), "--duration-ms", "300",
-                    "--noise-ratio", "0.5", "--seed", "1"], check=True, env=env, stdout=subprocess.DEVNULL)
-    subprocess.run([sys.executable, "-m", "evstream.cli", "convert", str(npz), str(raw), "-q"], check=True, env=env,
-                   stdout=subprocess.DEVNULL)
+    script = "import sys\nfrom pathlib import Path\nfrom evstream.aot import recordings\nrecordings(Path(sys.argv[1]))"
+    # in a process of its own: the kernels that make them (synth, noise) are not the commands'
+    subprocess.run([sys.executable, "-c", script, str(folder)], check=True, env=dict(os.environ, EVSTREAM_AOT="0"))
+    paths = {name: next(folder.glob(f"rec-{name}.*")) for name in RECORDINGS}
     for argv in COMMANDS:
         with contextlib.redirect_stdout(io.StringIO()):
-            code = main([a.format(raw=raw, npz=npz, out=folder) for a in argv])
+            code = main([a.format(out=folder, **paths) for a in argv])
         if code != 0:
             raise RuntimeError(f"evstream {' '.join(argv)}: exit {code}")
     return [k for k in jit.KERNELS if k.jit_calls and exportable(k)]
@@ -93,10 +123,21 @@ def build(out_dir: Path | None = None) -> dict:
             self.release_gil = True
 
     pycc_compiler.Flags = ReleaseGil
+    fastmath: set = set()  # the py_funcs of `fastmath` kernels: compiled with it, as numba's JIT does
+    plain_compile = pycc_compiler.compile_extra
+
+    def compile_extra(typingctx, targetctx, func, args, return_type, flags, *rest, **options):
+        if func in fastmath:  # pycc compiles every export with one set of flags
+            flags = flags.copy()
+            flags.fastmath = True
+        return plain_compile(typingctx, targetctx, func, args, return_type, flags, *rest, **options)
+
+    pycc_compiler.compile_extra = compile_extra
     cc = CC("_aot")  # first: without a C compiler this fails at once, not after recording
     cc.target_cpu = "host"  # built where it runs, like numba's JIT
     with tempfile.TemporaryDirectory() as tmp:
         kernels = record(Path(tmp))
+    fastmath.update(k.py_func for k in kernels if k.targetoptions.get("fastmath"))
     index: dict = {"kernels": {}}
     with tempfile.TemporaryDirectory(dir=out_dir, prefix=".aot-build-") as build_dir:
         cc.output_dir = build_dir  # built aside, then moved in whole: a process loading the module meanwhile

@@ -125,7 +125,8 @@ class Unwrapper:
 
     def __call__(self, t_raw: np.ndarray) -> np.ndarray:
         out = np.empty(len(t_raw), np.int64)
-        unwrap_kernel(t_raw, self.bits, self.state, out)
+        # contiguous (DAT's times are every other word of its records): the layout the kernels ahead of time take
+        unwrap_kernel(np.ascontiguousarray(t_raw), self.bits, self.state, out)
         return out
 
 

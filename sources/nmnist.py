@@ -9,6 +9,7 @@ smallest known sensor that holds them (N-MNIST 34x34, DVS128, ATIS 304x240); pas
 
 from __future__ import annotations
 
+from builtins import open as open_file
 from collections.abc import Iterator
 
 import numpy as np
@@ -68,6 +69,18 @@ class NmnistSource(FileSource):
             t, x, y, p = _unpack(raw)
             yield Block(unwrap(t), x, y, p, pos, pos + len(raw), 5)
         self.counters = {"clock_wraps": unwrap.wraps}
+
+
+def save(path, events) -> None:
+    """Write events as an N-MNIST binary (x, y below 256; times below 2^23 µs): for tests and tools
+    (evstream.aot)."""
+    r = np.zeros((len(events), 5), np.uint8)
+    t = events.t.astype(np.uint32)
+    r[:, 0], r[:, 1] = events.x, events.y
+    r[:, 2] = (events.p.astype(np.uint8) << 7) | ((t >> 16) & 0x7F)
+    r[:, 3], r[:, 4] = (t >> 8) & 0xFF, t & 0xFF
+    with open_file(path, "wb") as f:
+        f.write(r.tobytes())
 
 
 def open(path, **options) -> NmnistSource:  # noqa: A001 - the format-module interface

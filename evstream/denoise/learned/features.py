@@ -191,7 +191,7 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 if tick >= REBASE_TICKS:
                     _rebase(word, tick - FAR_TICKS)
                     base += tick - FAR_TICKS
-                    tick = FAR_TICKS
+                    tick = np.int64(FAR_TICKS)  # int64, not a literal: typed alike wherever compiled (pycc too)
                 oldest = ti - WINDOW_US
                 while size > 0 and fifo_t[ix(head)] <= oldest:
                     e = fifo_pos[ix(head)]
