@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..events import EventChunk, NoiseClass, shown
-from ..jit import bind, njit
+from ..jit import bind, intrinsic, njit
 from ..nowrap import ix
 from ..pipeline import register
 from .base import InPlaceClassifier, grow_fifo
@@ -42,6 +42,54 @@ ABSOLUTE, RELATIVE = 0, 1
 PREFETCH_EVENTS, PREFETCH_FIFO = 4, 8
 # The FIFO expires its entries G at a time (see the kernel).
 EXPIRE_GROUP = 16
+
+
+@intrinsic
+def _head_group(typingctx, fifo_t, fifo_x, fifo_y, head, oldest, x0, y0, box):
+    """The EXPIRE_GROUP entries from `head` as one vector test: `out + (near << 32)`, `out` the entries whose
+    time is <= `oldest`, `near` those of them with column in x0 .. x0 + box and row in y0 .. y0 + box
+    (compared modulo the coordinates' width: the caller keeps x0, y0 >= -MAX_RADIUS_PX and the
+    coordinates below 2**bits - MAX_RADIUS_PX). Two masks and two popcounts: the loop over the entries
+    it replaces widened the uint16 coordinates to the times' 64-bit lanes (about 60 instructions)."""
+    from llvmlite import ir  # typing time: numba is loaded (evstream.jit)
+    from numba.core import types
+
+    arrays = (fifo_t, fifo_x, fifo_y)
+    if not all(isinstance(a, types.Array) and a.layout == "C" and isinstance(a.dtype, types.Integer) for a in arrays):
+        return None
+    if fifo_x.dtype != fifo_y.dtype:
+        return None
+    n = EXPIRE_GROUP
+
+    def codegen(context, builder, signature, args):
+        t_ary, x_ary, y_ary, at, old, cx, cy, span = args
+        i32 = ir.IntType(32)
+
+        def load(ty, ary, cell):
+            data = context.make_array(ty)(context, builder, ary).data
+            vec = ir.VectorType(cell, n)
+            return builder.load(builder.bitcast(builder.gep(data, [at]), vec.as_pointer()), align=1), vec
+
+        def splat(vec, value):
+            one = builder.insert_element(ir.Constant(vec, ir.Undefined), value, ir.Constant(i32, 0))
+            lanes = ir.Constant(ir.VectorType(i32, n), [0] * n)
+            return builder.shuffle_vector(one, ir.Constant(vec, ir.Undefined), lanes)
+
+        def bits(mask):  # <n x i1> -> how many set, as i64
+            return builder.zext(builder.ctpop(builder.bitcast(mask, ir.IntType(n))), ir.IntType(64))
+
+        tv, tvec = load(fifo_t, t_ary, context.get_value_type(fifo_t.dtype))
+        gone = builder.icmp_signed("<=", tv, splat(tvec, old))
+        cell = context.get_value_type(fifo_x.dtype)
+        inside = []
+        for ty, ary, lo in ((fifo_x, x_ary, cx), (fifo_y, y_ary, cy)):
+            v, vec = load(ty, ary, cell)
+            d = builder.sub(v, splat(vec, builder.trunc(lo, cell)))
+            inside.append(builder.icmp_unsigned("<=", d, splat(vec, builder.trunc(span, cell))))
+        near = builder.and_(gone, builder.and_(inside[0], inside[1]))
+        return builder.or_(bits(gone), builder.shl(bits(near), ir.Constant(ir.IntType(64), 32)))
+
+    return types.int64(fifo_t, fifo_x, fifo_y, types.intp, types.int64, types.intp, types.intp, types.intp), codegen
 
 
 @functools.cache
@@ -132,13 +180,18 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                 out = 0  # events of the head group already out of the window: in the box, on this plane
                 near = 0
                 same = 0
-                for k in range(0 if far else G):
-                    q = ix(head + k)
-                    d = (k < size) & (fifo_t[q] <= oldest)
-                    out += d
-                    near += d & (np.uint32(fifo_x[q] - x0) <= box) & (np.uint32(fifo_y[q] - y0) <= box)
-                    if match_polarity:
-                        same += d & ((fifo_y[q] >= y_plane) == (pl == 1))
+                if not far and not match_polarity and size >= G:  # the usual case: one vector test
+                    both = _head_group(fifo_t, fifo_x, fifo_y, np.intp(head), oldest, x0, y0, np.intp(box))
+                    out = both & 0xFFFFFFFF
+                    near = both >> 32
+                else:
+                    for k in range(0 if far else G):
+                        q = ix(head + k)
+                        d = (k < size) & (fifo_t[q] <= oldest)
+                        out += d
+                        near += d & (np.uint32(fifo_x[q] - x0) <= box) & (np.uint32(fifo_y[q] - y0) <= box)
+                        if match_polarity:
+                            same += d & ((fifo_y[q] >= y_plane) == (pl == 1))
                 corner = pl * plane + yi * padded_width + xi  # padded (row y, column x): the box's top-left
                 total = column_sum(hsum, corner + radius, padded_width, L) - near
                 area = L * L
@@ -226,7 +279,7 @@ class DensityFilter(InPlaceClassifier):
         far = hsum.nbytes > FAR_BYTES
         group = 0 if far else cap  # the group expiry keeps columns and rows (not `far`), not positions
         rows = 2 * (g.height + 2 * r + 1)  # fifo_y's range with match_polarity
-        xy = np.uint16 if max(g.width, rows) <= 2**16 else np.int32  # 4 bytes per entry less (L2 cache)
+        xy = np.uint16 if max(g.width, rows) <= 2**16 - MAX_RADIUS_PX else np.int32  # _head_group: no wrap
         return {
             "geometry": g,
             "far": far,
@@ -253,11 +306,15 @@ class DensityFilter(InPlaceClassifier):
         variant = (want_score, all_live)
         call = self._calls.get(variant) or self._calls.setdefault(variant, self._bound(variant))
         n = len(chunk)
-        score = np.zeros(n, np.float64) if want_score else _NO_SCORE
         t, x, y, p = chunk.t, chunk.x, chunk.y, chunk.p
         i = 0
+        if want_score:
+            score = np.zeros(n, np.float64)
+            more = (score,)
+        else:  # the class-only kernel's score argument is bound with the state: one argument fewer to key
+            score, more = _NO_SCORE, ()
         while True:
-            i = call(t, x, y, p, i, codes, score)
+            i = call(t, x, y, p, i, codes, *more)
             if i >= n:
                 return score
             grow_fifo(s, ("fifo_t", "fifo_pos") if self._far else ("fifo_t", "fifo_x", "fifo_y"))
@@ -276,7 +333,9 @@ class DensityFilter(InPlaceClassifier):
 
     def _bound(self, variant: tuple) -> object:
         """The kernel for `variant` = (want_score, all_live) with this state bound (evstream.jit.bind)."""
-        return bind(density_kernel(*self._options, *variant, self._far), 6, self._args)
+        want_score = variant[0]
+        return bind(density_kernel(*self._options, *variant, self._far), 6,
+                    self._args if want_score else (*self._args, _NO_SCORE))
 
 
 _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it

@@ -225,7 +225,7 @@ class TimeSeriesFilter(InPlaceClassifier):
         n = len(chunk)
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
         if len(s["live"]) < min(n, BLOCK_EVENTS):  # kept up to KEPT_LIVE: a chunk call allocates nothing
-            s["live"] = np.zeros(min(max(n, 2 * len(s["live"])), BLOCK_EVENTS), np.int64)
+            s["live"] = np.empty(min(max(n, 2 * len(s["live"])), BLOCK_EVENTS), np.int64)  # written before read
             self._bind()
         t, x, y = chunk.t, chunk.x, chunk.y
         if n <= BLOCK_EVENTS:
@@ -241,10 +241,11 @@ class TimeSeriesFilter(InPlaceClassifier):
 
     def _judge(self, want_score, t, x, y, codes, score) -> None:
         resume = False
+        more = (score,) if want_score else ()  # the class-only kernel's score argument is bound with the state
         while True:
-            call = self._calls.get(want_score) or self._calls.setdefault(
-                want_score, bind(dc_kernel(self._options, want_score), 5, self._args))
-            if call(t, x, y, resume, codes, score):
+            call = self._calls.get(want_score) or self._calls.setdefault(want_score, bind(
+                dc_kernel(self._options, want_score), 5, self._args if want_score else (*self._args, _NO_SCORE)))
+            if call(t, x, y, resume, codes, *more):
                 return
             grow_fifo(self._state, ("fifo_pos",))
             self._bind()
