@@ -44,6 +44,17 @@ def test_features_match_the_definition(seed, n, mean_dt_us, geometry):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
 
 
+@settings(max_examples=8, deadline=None)
+@given(st.integers(0, 2**32), st.sampled_from([1, 8, 16]))
+def test_an_mlp_stages_features_match_the_definition(seed, hidden):
+    """An MLP's kernel keeps a batch's features in a matrix and scores them after the batch (features.py):
+    the feature rows it gives, across several batches, are still the definition's."""
+    s = random_stream(seed, 300, Geometry(24, 18), mean_dt_us=300.0)
+    stage = LearnedFilter(model=random_model(seed, "mlp", hidden))
+    want = reference_features(s.t, s.x, s.y, s.p, 24, 18)
+    np.testing.assert_allclose(stage.features(s.replace(label=None)), want, rtol=0, atol=1e-9)
+
+
 @njit(cache=True)
 def _nb8_all(word, bins, centres, wp, tick, pis, b8):
     out = np.zeros((len(centres), 2), np.int64)
