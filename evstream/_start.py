@@ -4,7 +4,9 @@
   ignored. A terminal's Ctrl-C goes to the whole process group, workers too; a worker killed by it
   mid-task never cleaned up (its temporaries stayed, the command waited for it). The command stops the
   tasks itself. This module is what the worker imports first: the console script's main, re-imported by
-  the spawn, imports the package (else the worker's preload does).
+  the spawn, imports the package (else the worker's preload does). The worker started with SIGINT
+  blocked (evstream.batch.start_client), so a Ctrl-C during its start waited: ignored, then unblocked,
+  it is dropped.
 - The `evstream` command: a Ctrl-C while its imports load (up to a second) ends it with one line and
   130, not a traceback through numpy's import; `evstream.cli.main` puts Python's handler back.
 """
@@ -36,7 +38,9 @@ def guard():
     if threading.current_thread() is not threading.main_thread():
         return None
     if _a_spawned_worker():
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C pending since the worker started is dropped
+        if hasattr(signal, "pthread_sigmask"):
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         return None
     if os.path.basename(sys.argv[0] if sys.argv else "") == "evstream" and \
             signal.getsignal(signal.SIGINT) is signal.default_int_handler:

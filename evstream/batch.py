@@ -248,10 +248,41 @@ def start_client(jobs: int | None = None, scheduler: str | None = None):
     # the Nanny's `env` is applied, when the parent's __main__ is re-imported: the console script's is)
     pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **worker_env()}
     preload = [*dask.config.get("distributed.worker.preload", []), "evstream"]  # evstream/_start.py, at the latest
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn, "distributed.worker.preload": preload}):
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn, "distributed.worker.preload": preload}), \
+            _workers_start_with_sigint_blocked():
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                                env=worker_env(), host="127.0.0.1", silence_logs=logging.CRITICAL)
     return Client(cluster), cluster
+
+
+class _workers_start_with_sigint_blocked:
+    """While the cluster starts, each worker process is spawned with SIGINT blocked in the spawning thread
+    (multiprocessing's spawn: `util.spawnv_passfds`), and a signal mask survives fork and exec: the
+    worker's Python holds a terminal's Ctrl-C from its first instruction until evstream._start ignores
+    SIGINT and unblocks it, instead of raising KeyboardInterrupt in its bootstrap, with Python's lines on
+    the terminal. (Blocking it in this thread is not inherited far enough: distributed's event-loop
+    thread runs with an empty mask.) Only the spawns of this start: a worker restarted later (after one
+    died) starts as before."""
+
+    def __enter__(self):
+        from multiprocessing import util
+
+        self.util, self.spawn = util, util.spawnv_passfds
+        if not hasattr(signal, "pthread_sigmask"):
+            return self
+
+        def spawn_blocked(path, args, passfds):
+            old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                return self.spawn(path, args, passfds)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+        util.spawnv_passfds = spawn_blocked
+        return self
+
+    def __exit__(self, *exc):
+        self.util.spawnv_passfds = self.spawn
 
 
 STOP_WAIT_S = 10.0  # after a stop, how long the running tasks get to clean up before the cluster closes

@@ -112,6 +112,32 @@ def test_ctrl_c_at_any_moment_stops_the_run_and_leaves_no_temporary(folder, tmp_
         assert "interrupted by SIGINT" in stderr and "not finished" in stderr, stderr
 
 
+def test_a_terminals_ctrl_c_while_the_workers_python_starts_prints_nothing_of_theirs(folder, tmp_path):
+    """The gap docs/scale.md named: a terminal's Ctrl-C (the whole group) just after a worker's Python was
+    exec'd, before it imports evstream, raised KeyboardInterrupt in its bootstrap, and the worker printed
+    Python's traceback. The workers now start with SIGINT blocked (the threads that spawn them block it),
+    and ignore it before unblocking it: the command stops as at any other moment, with its one line."""
+    for attempt, delay_s in enumerate((0.05, 0.15, 0.3)):  # each printed a worker's traceback in 2 of 2 runs
+        out = tmp_path / f"out{attempt}"
+        argv = COMMANDS["convert"](folder, out) + ["--jobs", "2", "--force"]
+        env = {**os.environ, "EVSTREAM_THREADS": "0"}
+        proc = subprocess.Popen([str(EVSTREAM), *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=env, start_new_session=True)
+        try:
+            assert wait_for(lambda p=proc: children_spawning(p), proc), "the run ended before its workers spawned"
+            time.sleep(delay_s)  # into the worker's Python start-up (site, the spawn's imports): 0.1-1 s here
+            os.killpg(proc.pid, signal.SIGINT)
+            stdout, stderr = proc.communicate(timeout=300)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        assert proc.returncode == 130, (stdout, stderr)
+        assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+        assert stderr.strip().splitlines()[-1].startswith("evstream: interrupted"), stderr
+        assert temporaries(out) == []
+
+
 def busy_writer(source: str, out: str) -> dict:
     """A work function that never polls a stop: writes its temporary, then loops in Python."""
     Path(out).parent.mkdir(parents=True, exist_ok=True)
