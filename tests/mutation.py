@@ -45,8 +45,10 @@ TARGETS = {
     "codecs": ([CODECS + f for f in ("attachment.py", "event_packet.py", "evt2.py", "evt3.py")],
                ["tests/test_codecs_evt2.py", "tests/test_codecs_evt3.py", "tests/test_event_packet.py",
                 "tests/test_zenoh_attachment.py"]),
-    # the MCAP payloads: their tests are the archive's
-    "codecs_payloads": ([CODECS + "mono.py", CODECS + "packets.py"], ["tests/test_mcap_archive.py"]),
+    # the packet payloads: checked by the packet codec's tests (mono and EVT3 packets against references)
+    # and the MCAP archive's
+    "codecs_payloads": ([CODECS + "mono.py", CODECS + "packets.py"],
+                        ["tests/test_event_packet.py", "tests/test_mcap_archive.py"]),
     # the paper's cascade (the default denoiser) and the baselines; learned/ has its own tests
     "denoise_cascade": ([DENOISE + f for f in ("base.py", "cascade.py", "common.py", "density.py",
                                                "rowsum.py", "timeseries.py")],
@@ -165,6 +167,15 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "mutmut; outside it, test_dropped_events_are_counted_and_warned_about_where_the_stream_is_read fails on "
     "both (checked by hand)": [_B + "xǁFileSourceǁwarn__mutmut_6",
         _B + "xǁFileSourceǁwarn__mutmut_7"],
+    # evstream/codecs: mono.py and packets.py (session 9)
+    "copy=None / True / left out for copy=False in astype: a copy or not, the same values": [
+        *(f"evstream.codecs.mono.x_decode__mutmut_{n}" for n in (12, 14, 25)),
+        *(f"evstream.codecs.mono.x_encode__mutmut_{n}" for n in (58, 60, 63))],
+    "mono.decode: memoryview.cast('b') for 'B': np.frombuffer reads the same bytes whatever the view's "
+    "format": ["evstream.codecs.mono.x_decode__mutmut_6"],
+    "evt3_sensor_clock: the encoder's started flag 2 for 1 (it tests state[0] != 0); -2 for -1 as the "
+    "clock's time-low or row: any negative is none (both are 0 or more)": [
+        f"evstream.codecs.packets.x_evt3_sensor_clock__mutmut_{n}" for n in (26, 28, 30)],
     "the last-event map as float64: NEVER_US (-2^62) and every time difference below 2^53 µs (285 years) "
     "are exact, so the same comparisons": [
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_4",

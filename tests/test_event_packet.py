@@ -140,6 +140,44 @@ def test_mono_refuses_what_it_cannot_carry():
         mono.decode(b"\x00" * 12, 0)
 
 
+
+def _mono_words(events, order: str) -> bytes:
+    """Mono words built field by field in plain Python (dt ns, x, y, p), in byte order `order`."""
+    return b"".join((dt | x << 32 | y << 48 | p << 63).to_bytes(8, order) for dt, x, y, p in events)
+
+
+@pytest.mark.parametrize("big_endian", [False, True])
+def test_mono_decode_reads_either_byte_order_into_its_dtypes(big_endian):
+    base = 7_000_123_000
+    events = [(0, 0, 0, 0), (999, 65535, 0x7FFF, 1), (mono.MAX_SPAN_NS, 300, 200, 1), (4_567_000, 1, 2, 0)]
+    data = _mono_words(events, "big" if big_endian else "little")
+    t, x, y, p = mono.decode(data, base, big_endian)
+    assert (t.dtype, x.dtype, y.dtype, p.dtype) == (np.int64, np.uint16, np.uint16, np.uint8)
+    assert t.tolist() == [(base + dt) // 1000 for dt, *_ in events]
+    assert (x.tolist(), y.tolist(), p.tolist()) == tuple(list(c) for c in list(zip(*events))[1:])
+    packet = EventPacket(events=data, encoding="mono", time_base=base, is_bigendian=big_endian)
+    for got, want in zip(packets.PacketDecoder().decode(packet), (t, x, y, p)):
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
+def test_mono_encode_takes_each_field_to_its_limit_and_not_past_it():
+    t_us = 5_000_000  # t·1000 overflows int32: the times are widened before scaling
+    widest = t_us * 1000 - mono.MAX_SPAN_NS  # dt = 2^32 - 1 ns, the largest
+    for t in ([t_us], np.array([t_us], np.int32), np.array([t_us], np.uint32)):
+        data = mono.encode(t, [65535], [0x7FFF], [1], widest)
+        assert data == _mono_words([(mono.MAX_SPAN_NS, 65535, 0x7FFF, 1)], "little")
+    for t, y, p in (([2, 3, 0], [5, 5, 5], [0, 1, 0]), ([2, 3, 4], [5, 5, 0x8000], [0, 1, 0]),
+                    ([2, 3, 4], [5, 5, 5], [0, 1, 2])):  # event 2 before the time base, too low, of no polarity
+        with pytest.raises(ValueError, match=rf"^mono.encode: event 2 \(t={t[2]} µs, y={y[2]}, p={p[2]}\) cannot be "
+                                             r"written with time_base 1000 ns: dt must be 0..2\^32-1 ns"):
+            mono.encode(t, [4, 4, 4], y, p, 1000)
+    with pytest.raises(ValueError, match="dt must be"):
+        mono.encode([1], [1], [1], [1], 1001)  # before the time base
+    with pytest.raises(ValueError, match=r"^mono.encode: arrays differ in length \(t 2, x 2, y 1, p 2\)$"):
+        mono.encode([1, 2], [1, 2], [1], [0, 1], 0)
+
+
 # -- packets: evstream's conventions ---------------------------------------------------------------------
 def _cut(ev, n_packets, seed):
     rng = np.random.default_rng(seed)
@@ -259,3 +297,80 @@ def test_unix_time_packets_stay_small_in_memory():
         tracemalloc.stop()
     assert peak < 1_000_000
     np.testing.assert_array_equal(packets.PacketDecoder(absolute=True).decode(pk)[0], t + 10**6)
+
+
+def test_evt3_sensor_clock_alone():
+    """Without an encoder, from the first event's time-high; empty, negative or a clock past the first event."""
+    t, x, y, p = np.array([5000, 5000, 9000]), np.array([1, 2, 3]), np.array([4, 4, 6]), np.array([1, 0, 1])
+    data = packets.evt3_sensor_clock(t, x, y, p)
+    assert data[:2] == (0x8000 | 1).to_bytes(2, "little")
+    assert [a.tolist() for a in evt3.decode(data)] == [t.tolist(), x.tolist(), y.tolist(), p.tolist()]
+    assert packets.evt3_sensor_clock(t, x, y, p, from_time_high=0) == (0x8000).to_bytes(2, "little") + data
+    assert packets.evt3_sensor_clock(t[:0], x[:0], y[:0], p[:0]) == b""
+    with pytest.raises(ValueError, match=r"^evt3: event 0 has t=-1 µs; EVT3 needs t >= 0$"):
+        packets.evt3_sensor_clock(np.array([-1]), x[:1], y[:1], p[:1])
+    with pytest.raises(ValueError, match=r"^evt3: the clock is at time-high 2, past the first event \(t=5000 µs\)$"):
+        packets.evt3_sensor_clock(t, x, y, p, from_time_high=2)
+
+
+def test_packet_opening_one_microsecond_past_its_time_high_decodes_alone():
+    """A first event at time-low 1 still gets its TIME_LOW word (the clock's low starts as none, not 0 or 1)."""
+    for low in (0, 1, 2):
+        t = np.array([(7 << 12) | low, (7 << 12) | low, (9 << 12) | 1])
+        pk = packets.to_packet(t, np.array([3, 8, 9]), np.array([1, 1, 2]), np.array([0, 1, 1]), width=16, height=16)
+        np.testing.assert_array_equal(packets.PacketDecoder(absolute=True).decode(pk)[0], t)
+
+
+def test_to_packet_and_the_encoder_fill_every_field():
+    one = (np.array([5, 9]), np.array([1, 2]), np.array([3, 3]), np.array([0, 1]))
+    pk = packets.to_packet(*one, width=640, height=480)
+    assert (pk.encoding, pk.width, pk.height, pk.seq, pk.time_base, pk.stamp_ns, pk.frame_id, pk.is_bigendian) == (
+        "evt3", 640, 480, 0, 5000, 5000, "", False)
+    pk = packets.to_packet(*one, width=3, height=4, encoding="mono", seq=7, frame_id="cam0")
+    assert (pk.encoding, pk.width, pk.height, pk.seq, pk.frame_id) == ("mono", 3, 4, 7, "cam0")
+    enc = packets.PacketEncoder(width=3, height=4)
+    assert [enc.encode(*one).seq for _ in range(3)] == [0, 1, 2] and enc.encode(*one).frame_id == ""
+    with pytest.raises(ValueError, match=r"^unknown event encoding 'EVT3'; choose from evt3, mono$"):
+        packets.PacketEncoder(width=3, height=4, encoding="EVT3")
+    with pytest.raises(ValueError, match=r"^a packet needs at least one event$"):
+        enc.encode(*(a[:0] for a in one))
+
+
+def test_packet_encoder_names_a_bad_event_by_its_place_in_the_stream():
+    """Its packets continue one EVT3 encoder: event 1 of the second packet is the stream's event 4."""
+    enc = packets.PacketEncoder(width=4096, height=16)
+    enc.encode(np.array([1, 2, 3]), np.array([0, 1, 2]), np.array([0, 0, 0]), np.array([0, 0, 0]))
+    with pytest.raises(ValueError, match=r"^encode: event 4 \(t=5 µs, previous 4 µs, x=3000,"):
+        enc.encode(np.array([4, 5]), np.array([0, 3000]), np.array([0, 0]), np.array([0, 0]))
+
+
+def test_packet_decoder_reads_other_tools_packets_as_one_stream_by_default():
+    """Default (not absolute): time_base ignored for evt3; absolute: each packet placed by it, in int64 µs."""
+    pk = packets.to_packet(np.array([5, 9]), np.array([1, 2]), np.array([3, 3]), np.array([0, 1]), width=4, height=4)
+    moved = EventPacket(events=pk.events, time_base=3_000_000_123_456_789)
+    assert packets.PacketDecoder().decode(moved)[0].tolist() == [5, 9]
+    t = packets.PacketDecoder(absolute=True).decode(moved)[0]
+    assert t.dtype == np.int64 and t.tolist() == [3_000_000_123_456, 3_000_000_123_460]
+
+
+@pytest.mark.parametrize("absolute", [False, True])
+def test_packet_decoder_sums_the_counters_of_every_packet(absolute):
+    enc = packets.PacketEncoder(width=4, height=4)
+    dec = packets.PacketDecoder(absolute=absolute)
+    for i in range(3):
+        pk = enc.encode(np.array([5, 9]) + 10 * i, np.array([1, 2]), np.array([3, 3]), np.array([0, 1]))
+        junk = b"\x00\xd0" * (i + 1)  # i + 1 words of the unknown type 0xD after the opening TIME_HIGH
+        dec.decode(EventPacket(events=pk.events[:2] + junk + pk.events[2:], time_base=pk.time_base))
+        assert dec.counters["unknown"] == (i + 1) * (i + 2) // 2
+
+
+def test_packet_decoder_errors_name_what_is_wrong():
+    with pytest.raises(PacketError, match=r"^evt3 packet marked big-endian: EVT3 words are little-endian$"):
+        packets.PacketDecoder().decode(EventPacket(events=b"", encoding="evt3", is_bigendian=True))
+    with pytest.raises(PacketError, match=r"^mono.decode: 12 bytes is not a whole number of 8-byte events$"):
+        packets.PacketDecoder().decode(EventPacket(events=bytes(12), encoding="mono"))
+    with pytest.raises(PacketError, match=r"^unsupported event encoding 'evt9' \(readable: evt3, mono\)$"):
+        packets.PacketDecoder().decode(EventPacket(events=b"", encoding="evt9"))
+    with pytest.raises(PacketError, match=r"^unsupported event encoding 'Mono' \(readable: evt3, mono\); encoding "
+                                          r"names are lower case, as in ROS 2's event_camera_codecs$"):
+        packets.PacketDecoder().decode(EventPacket(events=b"", encoding="Mono"))
