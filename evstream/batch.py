@@ -7,11 +7,12 @@ name), so nothing of the user's data is pickled onto the wire beyond Dask's own 
 writes whole-or-nothing (evstream.safe_write), which is what makes a task that Dask re-runs after a worker
 died safe: a half-written output never sits at the target's name.
 
-A re-run skips a task only when its output was made from the recording as it is now with the same
-settings: each finished task leaves a small JSON record beside its output (`.NAME.settings.json`: the
-work function, its parameters, and the size and time of the recording and of the output when it was
-made). An output without one, whose settings differ, or whose recording or output changed since, is
-made again (`TaskResult.redone` says why).
+A re-run skips a task when its output was made from the recording as it is now with the same settings:
+each finished task leaves a small JSON record beside its output (`.NAME.settings.json`: the work
+function, its parameters, and the size and time of the recording and of the output when it was made).
+One whose settings or recording changed is made again (`TaskResult.redone` says why). An output the
+record does not describe (another command's, or changed since) is not replaced unless its recording
+is newer; the result says so (`TaskResult.note`).
 """
 
 from __future__ import annotations
@@ -58,11 +59,12 @@ class TaskResult:
     warnings: list[str] = field(default_factory=list)  # what the reader warned of (a truncated file), one line each
     redone: str | None = None  # done over an earlier output: why (its settings changed, its recording changed, ...)
     changed: dict = field(default_factory=dict)  # the settings that changed: name -> [before, now]
+    note: str | None = None  # skipped without a record of its settings: said (`redo_reason`)
 
     def as_dict(self) -> dict:
         return {"source": self.source, "out": self.out, "status": self.status, "seconds": self.seconds,
                 "events": self.events, "classes": self.classes, "error": self.error, "warnings": self.warnings,
-                "redone": self.redone, "changed": self.changed}
+                "redone": self.redone, "changed": self.changed, "note": self.note}
 
 
 def _is_recording(path: Path) -> bool:
@@ -177,36 +179,44 @@ def _stamp(path) -> list[int]:
     return [st.st_size, st.st_mtime_ns]
 
 
-def redo_reason(task: Task, settings: dict) -> tuple[str | None, dict]:
-    """Whether the task must run: (None, {}) when its output is up to date — there, with a record saying it
-    was made from the recording as it is now (size and time) with these `settings`, and not changed since;
-    else (why, the settings that changed: name -> [before, now]), why being "" when there is no output yet.
+UNRECORDED = ("no record of the settings it was made with (another command's output, or an older evstream's): "
+              "left as it is; --force makes it again")
+
+
+def redo_reason(task: Task, settings: dict) -> tuple[bool, str, dict]:
+    """Whether the task must run, why, and the settings that changed (name -> [before, now]):
+    - no output yet: (True, "", {});
+    - an output with a record beside it that describes it (its size and time): made again when its
+      recording changed or the `settings` differ from the record's, else up to date (False, "", {});
+    - an output without such a record (made by another command, by hand, by an evstream from before the
+      records, or changed since): not known to be evstream's to replace, so left as it is (False,
+      UNRECORDED, {}) unless its recording is newer than it (True, why, {}), the rule before records.
     Every writer puts its output in place whole, so an output at the target's name is a finished one."""
     try:
         made = _stamp(task.out)
     except OSError:
-        return "", {}
-    try:
-        record = json.loads(settings_file(task.out).read_text())
-        before, source_was, out_was = record["settings"], record["source_stamp"], record["out_stamp"]
-        if not isinstance(before, dict):
-            raise TypeError
-    except (OSError, ValueError, KeyError, TypeError):
-        return "no record of the settings it was made with", {}
+        return True, "", {}
     try:
         source_now = _stamp(task.source)
     except OSError:
         source_now = None
-    if out_was != made:
-        return "the output changed after it was made", {}
+    try:
+        record = json.loads(settings_file(task.out).read_text())
+        before, source_was, out_was = record["settings"], record["source_stamp"], record["out_stamp"]
+        if not isinstance(before, dict) or out_was != made:
+            raise TypeError
+    except (OSError, ValueError, KeyError, TypeError):
+        if source_now is not None and source_now[1] > made[1]:
+            return True, "its recording is newer than it (no record of its settings)", {}
+        return False, UNRECORDED, {}
     if source_was != source_now:
-        return "its recording changed", {}
+        return True, "its recording changed", {}
     if before != settings:
         changed = {k: [before.get(k), settings.get(k)] for k in sorted(set(before) | set(settings))
                    if before.get(k) != settings.get(k)}
-        return "settings changed: " + ", ".join(f"{k} {_shown(a)} -> {_shown(b)}" for k, (a, b) in changed.items()), \
-            changed
-    return None, {}
+        return True, "settings changed: " + ", ".join(f"{k} {_shown(a)} -> {_shown(b)}"
+                                                     for k, (a, b) in changed.items()), changed
+    return False, "", {}
 
 
 def _shown(v) -> str:
@@ -427,9 +437,9 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     results: dict[Task, TaskResult] = {}
     todo, why = [], {}
     for t in tasks:
-        reason, changed = redo_reason(t, settings)
-        if reason is None and not force:
-            results[t] = TaskResult(t.source, t.out, "skipped")
+        redo, reason, changed = redo_reason(t, settings)
+        if not redo and not force:
+            results[t] = TaskResult(t.source, t.out, "skipped", note=reason or None)
         else:
             todo.append(t)
             why[t] = ("--force" if force and os.path.exists(t.out) else reason or None), changed

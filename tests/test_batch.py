@@ -176,8 +176,9 @@ def test_rerun_skips_what_is_done_and_reports_a_bad_recording(client, dataset, t
 def test_a_rerun_with_other_settings_makes_again_what_they_change(client, dataset, tmp_path, capsys):
     """A re-run used to skip every recording whose output was newer than it, whatever the flags: `archive
     DATA/ OUT/ --end-us 100000` then `--end-us 50000` said "3 skipped" and kept the longer archives. Each
-    output now has its settings recorded beside it; a re-run with other settings (or of an output with no
-    record) makes it again and says so in the table; the same settings still skip."""
+    output now has its settings recorded beside it; a re-run with other settings makes it again and says
+    so in the table; the same settings still skip. An output without a record (the user's own one-file
+    archive in that folder, an older evstream's) is not replaced, and the table says why it was skipped."""
     data = tmp_path / "data"
     shutil.copytree(dataset / "synthetic", data)
     out = tmp_path / "out"
@@ -205,13 +206,22 @@ def test_a_rerun_with_other_settings_makes_again_what_they_change(client, datase
     assert "3 done (3 redone), 0 skipped" in printed
     assert f"redone: {data / 'bar.npz'}: settings changed: --denoise (not given) -> stcf" in printed
     assert printed.count("  redone  ") == 3
-    settings_of_bar = out / ".bar.mcap.settings.json"
-    settings_of_bar.unlink()  # an output made before settings were recorded (or by another command)
-    again = run("--end-us", "50000", "--denoise", "stcf")
-    assert again["bar.npz"]["redone"] == "no record of the settings it was made with"
-    assert {again[n]["status"] for n in ("ball.npz", "turntable.npz")} == {"skipped"}
-    os.utime(out / "ball.mcap", ns=(1, 1))  # changed since it was made (touched, copied over)
-    assert run("--end-us", "50000", "--denoise", "stcf")["ball.npz"]["redone"] == "the output changed after it was made"
+    (out / ".bar.mcap.settings.json").unlink()  # an output made by an older evstream, without a record
+    mine = out / "ball.mcap"
+    assert main(["archive", str(data / "ball.npz"), str(mine), "--frames", "--quiet"]) == 0  # the user's own
+    kept = {p: p.read_bytes() for p in (out / "bar.mcap", mine)}
+    assert main([*base, "--end-us", "60000", "--quiet"]) == 0  # other settings: a re-run replaced both
+    printed = capsys.readouterr().out
+    assert {p: p.read_bytes() for p in kept} == kept
+    assert "1 done (1 redone), 2 skipped" in printed
+    for name in ("bar.npz", "ball.npz"):
+        assert (f"skipped: {data / name}: no record of the settings it was made with (another command's output, "
+                "or an older evstream's): left as it is; --force makes it again") in printed
+    os.utime(data / "bar.npz")  # its recording newer than it: made again, as before the records
+    again = run("--end-us", "60000")
+    assert again["bar.npz"]["redone"] == "its recording is newer than it (no record of its settings)"
+    assert again["ball.npz"]["status"] == "skipped" and again["ball.npz"]["note"].startswith("no record")
+    assert run("--end-us", "60000", "--force")["ball.npz"]["redone"] == "--force"
 
 
 def test_frames_convert_and_eval_reruns_follow_their_settings(client, dataset, tmp_path, capsys):

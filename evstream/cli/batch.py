@@ -155,6 +155,8 @@ def table(results: list[batch.TaskResult]) -> str:
             lines.append(f"{r.status}: {r.source}: {r.error}")
         elif r.status == "done" and r.redone:
             lines.append(f"redone: {r.source}: {why_redone(r)}")
+        elif r.status == "skipped" and r.note:
+            lines.append(f"skipped: {r.source}: {r.note}")
     done = [r for r in results if r.status == "done"]
     stopped = sum(r.status == "interrupted" for r in results)
     redone = sum(bool(r.redone) for r in done)
