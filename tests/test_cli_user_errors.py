@@ -542,3 +542,12 @@ def test_eval_refuses_an_output_it_cannot_write_before_evaluating(tmp_path, caps
     rc, stdout, err = run(["eval", SHIPPED, "--seeds", "1", "--ratios", "1", "--rates-hz", flag, out], capsys)
     assert rc == 1 and stdout == ""  # was: every table printed first (minutes on the full set), then the error
     assert one_line_error(err) == f"evstream: error: {flag} {out}: cannot write there: Not a directory"
+
+
+def test_eval_real_names_a_folder(tmp_path, capsys):
+    """`eval --real FILE` said "[Errno 20] Not a directory: 'FILE'", `--real MISSING` "[Errno 2] No such file or
+    directory": Python's words without the flag. Now one line naming the flag, what was typed and why."""
+    for given, why in ((SHIPPED, "not a folder"), (tmp_path / "missing", "no such folder")):
+        rc, _, err = run(["eval", "--real", given], capsys)
+        assert rc == 2
+        assert one_line_error(err).startswith(f"evstream: error: --real {given}: {why} (--real DIR: every readable")

@@ -49,6 +49,9 @@ def cmd_eval(args) -> int:
     from .. import evaluation
 
     check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
+    if args.real and not Path(args.real).is_dir():  # was Python's "[Errno 20] Not a directory: 'X'"
+        raise UsageError(f"--real {args.real}: {'not a folder' if Path(args.real).exists() else 'no such folder'} "
+                         "(--real DIR: every readable recording in a folder; name recordings without it)")
     inputs = batch.files_named([*args.recordings, *([args.real] if args.real else [])])
     for flag, out in (("--json", args.json), ("--roc", args.roc)):  # before minutes of work, not after
         if out:
