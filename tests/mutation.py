@@ -8,8 +8,10 @@ tree under out/mutation/ (the work tree is never touched). Prints the score per 
 Numba: mutmut 3 skips every decorated function (its trampoline, applied under the function's own
 decorators, would be what numba compiles). So the copy of each mutated file has its kernels' `@njit`
 lines removed (`plain_kernels`): there they run as plain Python and mutmut mutates them like any
-function; everything not being mutated stays compiled. A kernel factory's `functools.cache` goes too
-(its nested kernel is then mutated with it). Only functions calling a numba `@intrinsic` (no
+function; everything not being mutated stays compiled. A function's `functools.cache` goes too: a
+kernel factory's nested kernel is then mutated with it, and no cache warmed by mutmut's clean run (in
+the process each mutant is forked from) answers for mutated code (`event_packet._layout`'s did for
+`_string`: its mutants "survived" every test). Only functions calling a numba `@intrinsic` (no
 plain-Python form) stay compiled. The work tree is never changed: normal runs are the same code.
 Numba's cache goes to a fresh folder per run, so no compiled code outlives a run.
 """
@@ -176,6 +178,30 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "evt3_sensor_clock: the encoder's started flag 2 for 1 (it tests state[0] != 0); -2 for -1 as the "
     "clock's time-low or row: any negative is none (both are 0 or more)": [
         f"evstream.codecs.packets.x_evt3_sensor_clock__mutmut_{n}" for n in (26, 28, 30)],
+    # evstream/codecs: EVT2, EVT3, the packet CDR, the attachment (session 9)
+    "EVT3 decoder before the first TIME_HIGH: the clock's wraps are 0 until a TIME_HIGH is seen (only "
+    "the has-high branch counts them), so (loops >> 24) / (loops << 25) is 0 too; and the time a TIME_LOW "
+    "computes there is recomputed by the TIME_HIGH that ends the branch before any event takes it": [
+        f"evstream.codecs.evt3.x__decode_kernel__mutmut_{n}" for n in (36, 37, 88, 89, 90, 91, 92, 93, 94)],
+    "EVT3 decoder: has_high = 2 for 1 (only ever tested for truth); a TIME_HIGH equal to the last one "
+    "(payload <= high) drops by 0, never a wrap": [
+        f"evstream.codecs.evt3.x__decode_kernel__mutmut_{n}" for n in (32, 204)],
+    "Evt2Encoder: np.array([-1]) is int64 without the dtype; -2 for -1 as 'no TIME_HIGH written yet' "
+    "(cur >= 0 decides, and either starts from 0)": [
+        f"evstream.codecs.evt2.xǁEvt2Encoderǁ__init____mutmut_{n}" for n in (3, 5, 7)],
+    "Evt2Encoder.encode: a word buffer of float64 (np.empty's default; every word < 2^32 is exact) or "
+    "larger than needed, and a copy or not in the final astype: the same bytes": [
+        f"evstream.codecs.evt2.xǁEvt2Encoderǁencode__mutmut_{n}" for n in (51, 53, 57, 59, 65, 86, 88, 91)],
+    "decode_attachment: n >= 16 for n > 16: 16 bytes is evstream's layout, taken by the branch before": [
+        "evstream.codecs.attachment.x_decode_attachment__mutmut_11"],
+    "EventPacket CDR: 'UTF-8' is 'utf-8'; memoryview.cast('b') for 'B' (len, slicing to bytes, struct and "
+    "indexing a byte against 0 or 1 are the same); aligning from pos + 4 for pos - 4 (8 apart: the same "
+    "padding for sizes 1, 4 and 8); aligning a 1-byte field, or not aligning when size > 2 (no field is 2 "
+    "bytes), changes nothing": [
+        f"evstream.codecs.event_packet.{m}" for m in (
+            "x__string__mutmut_4", "xǁ_Readerǁstring__mutmut_36", "x_decode_packet__mutmut_5",
+            "x_encode_packet__mutmut_18", "xǁ_Readerǁalign__mutmut_7", "xǁ_Readerǁscalar__mutmut_1",
+            "xǁ_Readerǁscalar__mutmut_2")],
     "the last-event map as float64: NEVER_US (-2^62) and every time difference below 2^53 µs (285 years) "
     "are exact, so the same comparisons": [
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_4",
@@ -213,8 +239,8 @@ def _is_cache(dec: ast.expr) -> bool:
 
 
 def plain_kernels(source: str) -> str:
-    """`source` with its numba kernels as plain Python: `@njit` lines removed, and `functools.cache`
-    on a function that builds a kernel; kept on functions calling an `@intrinsic` (numba-only)."""
+    """`source` with its numba kernels as plain Python: `@njit` lines removed (kept on functions calling
+    an `@intrinsic`: numba-only), and every `functools.cache` / `lru_cache` (see the module's doc)."""
     tree = ast.parse(source)
     intrinsics = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)
                   and any(isinstance(d, ast.Name) and d.id == "intrinsic" for d in f.decorator_list)}
@@ -223,10 +249,8 @@ def plain_kernels(source: str) -> str:
         if not isinstance(f, ast.FunctionDef):
             continue
         calls = {c.func.id for c in ast.walk(f) if isinstance(c, ast.Call) and isinstance(c.func, ast.Name)}
-        builds_kernel = any(isinstance(g, ast.FunctionDef) and g is not f and any(map(_is_njit, g.decorator_list))
-                            for g in ast.walk(f))
         for dec in f.decorator_list:
-            if (_is_njit(dec) and not calls & intrinsics) or (_is_cache(dec) and builds_kernel):
+            if (_is_njit(dec) and not calls & intrinsics) or _is_cache(dec):
                 drop.update(range(dec.lineno - 1, dec.end_lineno))  # the `@` is on dec.lineno
     lines = source.splitlines(keepends=True)
     return "".join(line for i, line in enumerate(lines) if i not in drop)

@@ -163,3 +163,32 @@ def test_encoder_spells_a_wrap_top_then_zero():
     words = np.frombuffer(evt2.encode(*_at(t0, t1)), "<u4").tolist()
     cd = 1 << 28 | 3 << 11 | 4
     assert words == [H | 0xFFFFFFF, cd, H | 0xFFFFFFF, H, H | 5, cd]
+
+
+def test_encoder_opens_on_time_high_1_and_takes_any_integer_dtype():
+    """A first event at 64..127 µs still gets its TIME_HIGH (the encoder's 'none written yet' is -1, not 0 or
+    1); times and coordinates of any integer dtype give the same words; an empty call gives no bytes."""
+    t, x, y, p = [64, 64, 127, 5000], [0, 2047, 3, 4], [5, 6, 2047, 0], [0, 1, 1, 0]
+    ev = np.array(t, np.int64), np.array(x, np.uint16), np.array(y, np.uint16), np.array(p, np.uint8)
+    want = evt2.encode(*ev)
+    assert np.frombuffer(want, "<u4")[0] == H | 1
+    assert_events_equal(evt2.decode(want), ev)
+    wide = np.array(t, np.uint64), np.array(x, np.int64), np.array(y, np.int32), np.array(p, np.int16)
+    assert evt2.encode(*wide) == want
+    assert evt2.encode(*([],) * 4) == b""
+
+
+def test_encoder_refuses_negative_coordinates_and_names_an_event_by_its_place_in_the_stream():
+    for field in range(1, 4):  # x, y or p of -1 (as int64, not wrapped into range) is not written
+        ev = [np.array([10, 11]), np.array([1, 2]), np.array([1, 2]), np.array([0, 1])]
+        ev[field][1] = -1
+        with pytest.raises(ValueError, match=r"^encode: event 1 \(t=11 µs, x="):
+            evt2.encode(*ev)
+    enc = evt2.Evt2Encoder()
+    enc.encode(*_at(1, 2, 3))
+    enc.encode(*_at(4, 5))
+    with pytest.raises(ValueError, match=r"^encode: event 6 \(t=5 µs, x=3, y=4, p=1\) cannot be written: EVT2 needs "
+                                         r"non-decreasing t >= 0, x and y < 2048, p 0 or 1$"):
+        enc.encode(*_at(6, 5))
+    with pytest.raises(ValueError, match=r"^encode: arrays differ in length \(t 2, x 2, y 2, p 1\)$"):
+        enc.encode(*(a[: 1 if k == 3 else 2] for k, a in enumerate(_at(7, 8))))

@@ -133,6 +133,69 @@ def test_events_before_the_first_time_high_are_skipped():
     assert x.tolist() == [2] and t.tolist() == [4096 + 5] and dec.counters["no_time"] == 1
 
 
+
+def test_words_before_the_first_time_high_set_the_row_time_low_and_vector_base():
+    """Before any TIME_HIGH, events are counted, not decoded, but ADDR_Y, TIME_LOW, VECT_BASE_X and the
+    vector words (which move the base on) set what the events after it take."""
+    words = [0x0005, 0x6007, 0x3800 | 100, 0x4801, 0x4000, 0x51FF, 0x2001,  # row 5, low 7, base 100 ON, 2+0+8+1 events
+             0x8003, 0x4003, 0x2002]  # then time-high 3: a vector at base 100 + 12 + 12 + 8 and one event at x 2
+    dec = evt3.Evt3Decoder()
+    t, x, y, p = dec.decode(np.array(words, "<u2").tobytes())
+    assert t.tolist() == [3 * 4096 + 7] * 3 and x.tolist() == [132, 133, 2]
+    assert y.tolist() == [5, 5, 5] and p.tolist() == [1, 1, 0] and dec.counters["no_time"] == 11
+    assert_events_equal((t, x, y, p), reference_decode(np.array(words, "<u2").tobytes())[0])
+
+
+before_time_high = st.builds(lambda k, pay: (k << 12) | pay, st.sampled_from([0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0xA]),
+                             st.integers(0, 0xFFF))
+events_only = st.builds(lambda k, pay: (k << 12) | pay, st.sampled_from([0x2, 0x4, 0x5, 0x6]), st.integers(0, 0xFFF))
+
+
+@given(st.lists(before_time_high, min_size=1, max_size=30), st.integers(0, 0xFFF), st.lists(events_only, max_size=30))
+def test_decoder_matches_reference_after_a_long_run_without_time_high(prefix, high, rest):
+    data = np.array([*prefix, 0x8000 | high, *rest], "<u2").tobytes()
+    want, counts = reference_decode(data)
+    dec = evt3.Evt3Decoder()
+    assert_events_equal(dec.decode(data), want)
+    assert dec.counters == counts
+
+
+def test_a_block_opening_on_an_event_keeps_the_wraps_before_it():
+    dec = evt3.Evt3Decoder()
+    t, *_ = dec.decode(np.array([0x8FFF, 0x6001, 0x0000, 0x2001, 0x8000, 0x6002], "<u2").tobytes())
+    assert t.tolist() == [4095 * 4096 + 1]
+    t, *_ = dec.decode(np.array([0x2003, 0x8001, 0x2004], "<u2").tobytes())
+    assert t.tolist() == [WRAP + 2, WRAP + 4096 + 2]
+
+
+
+def test_every_step_back_is_counted_events_and_vectors_alike():
+    """A step back is an event (or a non-empty vector) earlier than the one before it: equal times and an
+    empty vector are not; each one counts."""
+    words = [0x8001, 0x6032, 0x0002, 0x300A, 0x4003,  # x 10, 11 at 4096 + 50
+             0x6028, 0x4001,  # x 22 at + 40: back (1)
+             0x601E, 0x5001, 0x4002, 0x4000, 0x2001,  # x 34 at + 30: back (2); x 43, x 1 at + 30; an empty vector
+             0x6014, 0x2002, 0x2003]  # x 2 at + 20: back (3); x 3 at + 20
+    data = np.array(words, "<u2").tobytes()
+    dec = evt3.Evt3Decoder()
+    t, x, *_ = dec.decode(data)
+    assert (t - 4096).tolist() == [50, 50, 40, 30, 30, 30, 20, 20] and x.tolist() == [10, 11, 22, 34, 43, 1, 2, 3]
+    assert dec.counters["time_back"] == 3 == reference_decode(data)[1]["time_back"]
+
+
+def test_a_wrap_is_a_time_high_drop_of_4080_or_more():
+    words = [0x8FF0, 0x600A, 0x0001, 0x2001,  # 0xFF0 -> 0: a drop of 4080, a wrap
+             0x8000, 0x2002, 0x8FEF, 0x2003,
+             0x8000, 0x2004,  # 0xFEF -> 0: a drop of 4079, a step back
+             0x8FFF, 0x8000, 0x2005]  # 0xFFF -> 0: the second wrap
+    data = np.array(words, "<u2").tobytes()
+    dec = evt3.Evt3Decoder()
+    t, *_ = dec.decode(data)
+    assert t.tolist() == [0xFF0 * 4096 + 10, WRAP + 10, WRAP + 0xFEF * 4096 + 10, WRAP + 10, 2 * WRAP + 10]
+    assert (dec.counters["wraps"], dec.counters["time_back"]) == (2, 1)
+    assert_events_equal((t, *_), reference_decode(data)[0])
+
+
 # -- encoder --------------------------------------------------------------------------------------
 @st.composite
 def event_streams(draw):

@@ -3,13 +3,15 @@ implementations: mcap_ros2's CDR serializer and parser, faery's EVT3 decoder, pl
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
-from evstream.codecs import evt3, mono, packets
+from evstream.codecs import event_packet, evt3, mono, packets
 from evstream.codecs.event_packet import (
     DATATYPE,
     MSGDEF,
@@ -98,6 +100,104 @@ def test_encoder_refuses_values_that_do_not_fit():
                    {"stamp_ns": 2**31 * 10**9}):
         with pytest.raises(PacketError):
             encode_packet(EventPacket(events=b"", **kwargs))
+
+
+
+def _reads(frame_id: str, encoding: str, n_events: int) -> list[tuple[str, int, int]]:
+    """(field, size, offset) of each read of a packet, as plain CDR lays it out: every field aligned to
+    its size counted from the end of the 4-byte encapsulation header; a string is its uint32 length, then
+    its bytes and a NUL."""
+    fields = [("header.stamp.sec", 4), ("header.stamp.nanosec", 4), ("the length of header.frame_id", 4),
+              ("header.frame_id", len(frame_id.encode()) + 1), ("height", 4), ("width", 4), ("seq", 8),
+              ("time_base", 8), ("the length of encoding", 4), ("encoding", len(encoding.encode()) + 1),
+              ("is_bigendian", 1), ("the length of events", 4), ("events", n_events)]
+    out, pos = [], 4
+    for what, size in fields:
+        align = 1 if what in ("header.frame_id", "encoding", "events") else size
+        pos += -(pos - 4) % align
+        out.append((what, size, pos))
+        pos += size
+    return out
+
+
+@pytest.mark.parametrize("big_endian", [False, True])
+@pytest.mark.parametrize("frame_id,encoding", [("cam", "evt3"), ("camera", "mono"), ("", "x")])
+def test_every_truncation_names_the_field_and_its_offset(big_endian, frame_id, encoding):
+    data = encode_packet(EventPacket(events=bytes(range(13)), encoding=encoding, frame_id=frame_id, seq=7),
+                         big_endian=big_endian)
+    reads = _reads(frame_id, encoding, 13)
+    assert reads[-1][1] + reads[-1][2] == len(data)
+    for cut in range(len(data)):
+        if cut < 4:
+            want = f"^EventPacket of {cut} bytes is shorter than its 4-byte CDR header$"
+        else:
+            what, size, pos = next(r for r in reads if r[2] + r[1] > cut)
+            want = f"^EventPacket truncated: {re.escape(what)} needs {size} bytes at offset {pos}, "
+            if cut >= pos:  # (a cut inside the padding before a field leaves a negative count)
+                want += f"{cut - pos} remain \\(packet of {cut} bytes\\)$"
+        with pytest.raises(PacketError, match=want):
+            decode_packet(data[:cut])
+    assert decode_packet(data, max_bytes=len(data)).seq == 7
+
+
+def test_every_field_at_its_limits_round_trips_byte_for_byte():
+    for pk in (EventPacket(events=b"\xff", encoding="e" * 65535, width=2**32 - 1, height=2**32 - 1, seq=2**64 - 1,
+                           time_base=2**64 - 1, stamp_ns=-(2**31) * 10**9, frame_id="f" * 65535, is_bigendian=True),
+               EventPacket(events=b"", stamp_ns=2**31 * 10**9 - 1, width=2**31, height=2**31, seq=2**63,
+                           time_base=2**63)):
+        assert decode_packet(encode_packet(pk, big_endian=True)) == pk
+        data = encode_packet(pk)
+        assert decode_packet(data) == pk and data == ROS_ENCODE(_as_ros(pk))
+
+
+def test_encoder_names_the_value_that_does_not_fit(monkeypatch):
+    for name, bits in (("height", 32), ("width", 32), ("seq", 64), ("time_base", 64)):
+        for bad in (-1, 2**bits):
+            with pytest.raises(PacketError, match=rf"^EventPacket.{name} = {bad} does not fit uint{bits}$"):
+                encode_packet(EventPacket(events=b"", **{name: bad}))
+    for stamp_ns in (-(2**31) * 10**9 - 1, 2**31 * 10**9):
+        with pytest.raises(PacketError,
+                           match=rf"^EventPacket.stamp_ns = {stamp_ns} is outside the int32 seconds range$"):
+            encode_packet(EventPacket(events=b"", stamp_ns=stamp_ns))
+    for name in ("frame_id", "encoding"):
+        with pytest.raises(PacketError, match=rf"^EventPacket.{name} contains a NUL character$"):
+            encode_packet(EventPacket(events=b"", **{name: "a\x00"}))
+        with pytest.raises(PacketError, match=rf"^EventPacket.{name} is 65536 bytes long; the limit is 65535$"):
+            encode_packet(EventPacket(events=b"", **{name: "é" * 32768}))
+    monkeypatch.setattr(event_packet, "MAX_PACKET_BYTES", 64)  # the 1 GiB limit, made small enough to test
+    assert decode_packet(encode_packet(EventPacket(events=bytes(64)))).events == bytes(64)
+    with pytest.raises(PacketError, match=r"^EventPacket.events is 65 bytes; the limit is 64$"):
+        encode_packet(EventPacket(events=bytes(65)))
+
+
+def _with(data: bytes, offset: int, raw: bytes) -> bytes:
+    return data[:offset] + raw + data[offset + len(raw):]
+
+
+def test_decoder_names_each_bad_value_and_its_offset():
+    data = encode_packet(EventPacket(events=b"abcd", frame_id="cam", encoding="evt3"))
+    reads = {what: pos for what, _, pos in _reads("cam", "evt3", 4)}
+    u32 = lambda v: v.to_bytes(4, "little")  # noqa: E731
+    flag = reads["is_bigendian"]
+    for raw, at, why in (
+        (u32(10**9), 8, f"EventPacket header.stamp.nanosec = {10**9} at offset 8 is not < 1e9"),
+        (u32(2**32 - 1), 8, f"EventPacket header.stamp.nanosec = {2**32 - 1} at offset 8 is not < 1e9"),
+        (u32(0), 12, "EventPacket header.frame_id: bad string length 0 at offset 12"),
+        (u32(2**32 - 1), 12, f"EventPacket header.frame_id: bad string length {2**32 - 1} at offset 12"),
+        (u32(65537), reads["the length of encoding"],
+         f"EventPacket encoding: bad string length 65537 at offset {reads['the length of encoding']}"),
+        (b"x", 19, "EventPacket header.frame_id: string at offset 16 lacks its terminating NUL"),
+        (b"\xff", 17, "EventPacket header.frame_id: not UTF-8 at offset 16"),
+        (b"\x02", flag, f"EventPacket is_bigendian = 2 at offset {flag} is not a bool"),
+        (b"\xff", flag, f"EventPacket is_bigendian = 255 at offset {flag} is not a bool"),
+        (b"\x00\x02", 0, "EventPacket: unsupported CDR encapsulation 0002 (plain CDR 0000 or 0001 expected)"),
+    ):
+        with pytest.raises(PacketError, match=f"^{re.escape(why)}$"):
+            decode_packet(_with(data, at, raw))
+    with pytest.raises(PacketError, match=rf"^EventPacket of {len(data)} bytes exceeds the limit of {len(data) - 1}$"):
+        decode_packet(data, max_bytes=len(data) - 1)
+    assert decode_packet(_with(data, 8, u32(10**9 - 1))).stamp_ns == 10**9 - 1
+    assert decode_packet(_with(data, flag, b"\x01")).is_bigendian is True
 
 
 # -- mono -------------------------------------------------------------------------------------------------

@@ -3,6 +3,8 @@ from keys, packetizing a stream for publication, and the subscriber's handling o
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import zenoh.ext as zext
@@ -54,6 +56,30 @@ def test_bad_attachments_are_errors(bad):
         return
     with pytest.raises(AttachmentError):
         decode_attachment(bad)
+
+
+
+@pytest.mark.parametrize("gid_len", [0, 1, 17, 63, 64, 65, 127, 128, 200, 16_383, 16_384, 20_000])
+def test_rmw_gid_length_is_read_as_leb128_whatever_its_size(gid_len):
+    """Zenoh writes the GID's length as LEB128 (2 bytes from 128, 3 from 16,384): read back exactly, and a
+    GID longer than 64 bytes is refused naming the length it read."""
+    theirs = zext.z_serialize((zext.Int64(5), zext.Int64(-6), bytes(range(256)) * (gid_len // 256) +
+                               bytes(range(gid_len % 256)))).to_bytes()
+    if gid_len <= 64:
+        a = decode_attachment(theirs)
+        assert (a.seq, a.source_time_ns, a.kind, len(a.gid)) == (5, -6, RMW_ZENOH, gid_len)
+    else:
+        with pytest.raises(AttachmentError, match=rf"^attachment of {len(theirs)} bytes: GID length {gid_len} at "
+                                                  "byte 16 does not fit$"):
+            decode_attachment(theirs)
+
+
+def test_bad_attachments_say_what_is_wrong():
+    for bad, why in ((b"\x01" * 15, "attachment of 15 bytes: neither evstream's (16) nor rmw_zenoh's layout"),
+                     (b"\x00" * 16 + b"\x80" * 10 + b"\x00", "attachment: unterminated LEB128 length at byte 16"),
+                     (b"\xff" * 16 + b"\x00", "attachment: negative sequence number -1")):
+        with pytest.raises(AttachmentError, match=f"^{re.escape(why)}$"):
+            decode_attachment(bad)
 
 
 @pytest.mark.parametrize("key,camera", [
