@@ -33,6 +33,8 @@ from . import jit
 COMMANDS = (
     ["archive", "{raw}", "{out}/a.mcap", "--denoise", "paper", "-q"],
     ["archive", "{npz}", "{out}/b.mcap", "--denoise", "paper", "-q"],
+    ["archive", "{small}", "{out}/s.mcap", "--denoise", "paper", "-q"],  # in one block: columns not writeable
+    ["archive", "{small}", "{out}/t.mcap", "--denoise", "learned", "-q"],
     ["replay", "{raw}", "--denoise", "paper", "--save", "{out}/r.rrd", "-q"],
     ["convert", "{raw}", "{out}/c.raw", "-q"],
     ["convert", "{npz}", "{out}/d.raw", "-q"],
@@ -44,7 +46,7 @@ COMMANDS = (
     ["archive", "{npz}", "{out}/k.mcap", "--denoise", "learned", "-q"],
     ["convert", "{npz}", "{out}/l.raw", "--evt", "2", "-q"],
 )
-RECORDINGS = ("npz", "raw", "vga_evt2", "dat", "nmnist")  # what COMMANDS' fields name (`recordings`)
+RECORDINGS = ("npz", "raw", "small", "vga_evt2", "dat", "nmnist")  # what COMMANDS' fields name (`recordings`)
 OPTIONS = {"cache", "nogil", "inline", "fastmath"}  # kernels compiled with other numba options stay with the JIT
 
 
@@ -65,7 +67,8 @@ def arg_key(ty):
 
 def recordings(folder: Path) -> dict[str, Path]:
     """Small synthetic recordings in `folder`, one per field of COMMANDS: the turntable (346x260) as .npz and
-    EVT3 .raw, as a 640x480 EVT2 .raw, a DAT file (304x240) and an N-MNIST binary (34x34)."""
+    EVT3 .raw, its first 2,000 events as a stored (not deflated) .npz, as a 640x480 EVT2 .raw, a DAT file
+    (304x240) and an N-MNIST binary (34x34)."""
     from . import noise, synth
     from .events import Geometry
 
@@ -76,9 +79,11 @@ def recordings(folder: Path) -> dict[str, Path]:
     from .sources import dat, native, nmnist, prophesee_raw
 
     paths = {name: folder / f"rec-{name}{ext}" for name, ext in
-             (("npz", ".npz"), ("raw", ".raw"), ("vga_evt2", ".raw"), ("dat", ".dat"), ("nmnist", ".bin"))}
+             (("npz", ".npz"), ("raw", ".raw"), ("small", ".npz"), ("vga_evt2", ".raw"), ("dat", ".dat"),
+              ("nmnist", ".bin"))}
     davis = scene(346, 260)
     native.save(paths["npz"], davis)
+    native.save(paths["small"], davis[:2000], compress=False)  # stored: its columns are views of the bytes read
     prophesee_raw.save(paths["raw"], davis, Geometry(346, 260))
     prophesee_raw.save(paths["vga_evt2"], scene(640, 480), Geometry(640, 480), version="evt2")
     dat.save(paths["dat"], scene(304, 240))

@@ -30,11 +30,12 @@ _UNITS = {"_us": "µs", "_ms": "ms", "_s": "s", "_hz": "Hz", "_px": "pixels", "_
 
 # -- sources -------------------------------------------------------------------------------------
 def open(path, *, geometry=None, timestamps: str | None = None,  # noqa: A001 - evstream.open, as io.open
-         start_us: int | None = None, end_us: int | None = None):
+         start_us: int | None = None, end_us: int | None = None, chunk_events: int | None = None):
     """A recording (any supported file or an MCAP log) as a stream of chunks: iterate it for
     `EventChunk`s; `.geometry` is the sensor size. `geometry` ("WxH", (W, H) or a Geometry) overrides the
     file's; `timestamps` is what to do with time going back: "error", "sort" or "drop" (default: the
-    format's); `start_us` <= t < `end_us` keeps a time range (either may be None: open on that side)."""
+    format's); `start_us` <= t < `end_us` keeps a time range (either may be None: open on that side);
+    `chunk_events`: events per chunk (default the reader's, 50,000)."""
     from evstream.sources import open_source
 
     from .safe_write import reading
@@ -44,6 +45,8 @@ def open(path, *, geometry=None, timestamps: str | None = None,  # noqa: A001 - 
         options["geometry"] = as_geometry(geometry)
     if timestamps is not None:
         options["timestamps"] = timestamps
+    if chunk_events is not None:
+        options["chunk_events"] = int(chunk_events)
     source = open_source(path, **options)
     reading(source, path)  # `open_sink` will not write over it while it is alive
     if start_us is None and end_us is None:

@@ -56,11 +56,11 @@ class AgainstJit:
 
 @needs_aot
 @settings(max_examples=4, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(1, 40_000), mean_dt_us=st.sampled_from([2.0, 20.0, 200.0]))
+@given(seed=st.integers(0, 10_000), n=st.integers(2_000, 40_000), mean_dt_us=st.sampled_from([2.0, 20.0, 200.0]))
 def test_every_ahead_of_time_call_of_the_commands_matches_numba(tmp_path_factory, seed, n, mean_dt_us):
     """The commands `evstream.aot` compiles for, run on random recordings (bursts, border pixels, a hot
     pixel): every call served ahead of time is checked against numba on the same arguments, and every
-    compiled kernel is called."""
+    compiled kernel is called (from 2,000 events: an archive of fewer may hold no signal, so no packet)."""
     folder = tmp_path_factory.mktemp("aot")
     paths = random_recordings(folder, seed, n, mean_dt_us)
     commands = [[a.format(out=folder, **paths) for a in argv] for argv in aot.COMMANDS]
@@ -81,7 +81,7 @@ def test_every_ahead_of_time_call_of_the_commands_matches_numba(tmp_path_factory
             k.aot = saved[k]
     calls = {k.key: sum(c.calls for c in checks[k].values()) for k in kernels}
     assert set(calls) == set(json.loads(jit.AOT_INDEX.read_text())["kernels"])
-    assert all(calls.values()), calls
+    assert all(calls.values()), [k for k, v in calls.items() if not v]
 
 
 def random_recordings(folder: Path, seed: int, n: int, mean_dt_us: float = 50.0) -> dict[str, Path]:
@@ -89,9 +89,11 @@ def random_recordings(folder: Path, seed: int, n: int, mean_dt_us: float = 50.0)
     at 64x48, EVT2 at 640x480 (the `far` kernels), DAT, N-MNIST; and EVT3 at 1280x720."""
     small = random_stream(seed, n, G, mean_dt_us=mean_dt_us)
     vga, hd = Geometry(640, 480), Geometry(1280, 720)
-    paths = {"npz": folder / "rec.npz", "raw": folder / "rec.raw", "vga_evt2": folder / "vga.raw",
+    paths = {"npz": folder / "rec.npz", "raw": folder / "rec.raw", "small": folder / "small.npz",
+             "vga_evt2": folder / "vga.raw",
              "dat": folder / "rec.dat", "nmnist": folder / "rec.bin", "hd_evt3": folder / "hd.raw"}
-    native.save(paths["npz"], small, compress=False)
+    native.save(paths["npz"], small)  # deflated, as `evstream.aot` makes it: chunks of inflated (writeable) blocks
+    native.save(paths["small"], small[:2000], compress=False)  # stored, in one block: its columns not writeable
     prophesee_raw.save(paths["raw"], small, G, version="evt3")
     prophesee_raw.save(paths["vga_evt2"], random_stream(seed, n, vga, mean_dt_us=mean_dt_us), vga, version="evt2")
     prophesee_raw.save(paths["hd_evt3"], random_stream(seed, n, hd, mean_dt_us=mean_dt_us), hd, version="evt3")

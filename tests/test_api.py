@@ -206,6 +206,12 @@ def test_open_keeps_a_time_range():
     assert evstream.info(BAR, end_us=50_000)["events"] == int((whole.t < 50_000).sum())
 
 
+def test_open_cuts_the_chunks_it_is_asked_for():
+    whole = evstream.read(BAR)
+    sizes = [len(c) for c in evstream.open(BAR, chunk_events=7_000)]
+    assert sum(sizes) == len(whole) and set(sizes[:-1]) == {7_000} and 0 < sizes[-1] <= 7_000
+
+
 def test_open_sink_refuses_the_recording_a_script_reads(tmp_path):
     """`src = evstream.open(A)` then `open_sink(A)` (or a link to A) wrote over the recording being read."""
     import gc

@@ -12,6 +12,7 @@ from ..framing import options as framer_options
 from ..writers import archive
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
+    FAST_CHUNK_EVENTS,
     STORED_CLASSES_NOTE,
     Progress,
     StopOnSignal,
@@ -73,7 +74,7 @@ def archive_one(args, stop: StopOnSignal | TaskStop | None = None):
 
     check_numbers(args, at_least_zero=("speed",), positive=("packet_us", "flush_s"))
     not_the_input(args.source, args.out, "")  # `archive A.mcap A.mcap` emptied A.mcap and exited 0
-    source = open_recording(args.source, args)
+    source = open_recording(args.source, args, FAST_CHUNK_EVENTS if args.speed == 0 else None)
     pipeline = pipeline_from_args(args, source)
     attach_framer(pipeline, args)
     created = create_folder(Path(args.out).parent)

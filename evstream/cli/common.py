@@ -38,9 +38,17 @@ def reader_options(args) -> dict:
     return options
 
 
-def open_recording(path: str, args=None):
-    """`api.open` with the reader flags."""
-    return api.open(path, **reader_options(args))
+# Chunks of a file read as fast as possible (`--speed 0`) by `archive`: on threads (evstream.threads) each chunk
+# costs every thread a hand-off, Python and a wait for the GIL; with 50,000-event chunks the three threads
+# waited on each other and the run was no faster than one thread. Measured in one process (run only, 10 M
+# events, .raw, near-quiet): serial 0.43-0.50 s; threaded, 50,000-event chunks 0.45-0.60 s, 200,000 0.34-0.36 s
+# (docs/archive.md). Paced runs keep the readers' chunks: a chunk is released when its last event is due.
+FAST_CHUNK_EVENTS = 200_000
+
+
+def open_recording(path: str, args=None, chunk_events: int | None = None):
+    """`api.open` with the reader flags (and `chunk_events` per chunk, when given)."""
+    return api.open(path, **reader_options(args), chunk_events=chunk_events)
 
 
 def geometry_flag(text: str):
