@@ -160,11 +160,22 @@ def _has_namesake(source: Path) -> bool:
 NOT_SETTINGS = frozenset({"quiet", "json", "command_line"})
 
 
-def settings_of(work: Callable, params: dict) -> dict:
-    """What a task's output depends on besides its recording: the work function (by name) and its
-    parameters but NOT_SETTINGS, as JSON gives them back (tuples as lists)."""
+def settings_of(work: Callable, params: dict, files: Iterable[str] = ()) -> dict:
+    """What a task's output depends on besides its recording: the work function (by name), its parameters
+    but NOT_SETTINGS, as JSON gives them back (tuples as lists), and the SHA-256 of `files` it reads
+    (a pipeline TOML, a model: an edit to one changes the output under the same flags)."""
     chosen = {k: params[k] for k in sorted(params) if k not in NOT_SETTINGS}
+    chosen.update({f"contents of {f}": _digest(f) for f in files if f})
     return json.loads(json.dumps({"work": f"{work.__module__}:{work.__qualname__}", **chosen}))
+
+
+def _digest(path: str) -> str | None:
+    import hashlib
+
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:  # the task says what is wrong with it
+        return None
 
 
 def settings_file(out) -> Path:
@@ -416,7 +427,8 @@ def _call(work: Callable, source: str, out: str, params: dict, run: str | None, 
 def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, client=None, jobs: int | None = None,
              scheduler: str | None = None, force: bool = False, retries: int = 2,
              on_result: Callable[[TaskResult, int, int], None] | None = None,
-             warm: Callable[[], None] | None = None, stop: Callable[[], object] | None = None) -> list[TaskResult]:
+             warm: Callable[[], None] | None = None, stop: Callable[[], object] | None = None,
+             reads: Iterable[str] = ()) -> list[TaskResult]:
     """Run `work(source, out, **params)` for every task (skipping up-to-date outputs unless `force`:
     `redo_reason`) on a Dask cluster; returns one TaskResult per task, in the tasks' order. `work` must be
     importable on the workers (a module-level function) and return a dict (with `events_in` and
@@ -424,7 +436,8 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     on-disk cache, compiled once instead of once per worker), then on every worker (its imports and cached
     kernels loaded, so a recording's seconds are its own; `warm` must then be picklable by reference, e.g. a partial).
     `retries`: Dask's re-runs of a task whose worker died or that raised.
-    `on_result(result, done, total)` is called as each finishes (progress).
+    `on_result(result, done, total)` is called as each finishes (progress). `reads`: files every task reads
+    besides its recording (a pipeline TOML, a model), whose contents count as settings (`redo_reason`).
 
     Stopping: `stop()` is polled (true, or a signal number, ends the run; a KeyboardInterrupt here does
     too, and is raised again after). The tasks not started are dropped; the running ones are told (a
@@ -433,7 +446,7 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     raised where they are (a second Ctrl-C's effect; their clean-up runs), and all are waited for up to
     STOP_WAIT_S; they come back "interrupted". A second KeyboardInterrupt here closes the cluster at once."""
     params = params or {}
-    settings = settings_of(work, params)
+    settings = settings_of(work, params, reads)
     results: dict[Task, TaskResult] = {}
     todo, why = [], {}
     for t in tasks:

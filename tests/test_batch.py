@@ -224,6 +224,24 @@ def test_a_rerun_with_other_settings_makes_again_what_they_change(client, datase
     assert run("--end-us", "60000", "--force")["ball.npz"]["redone"] == "--force"
 
 
+def test_an_edited_pipeline_file_makes_the_recordings_again(client, dataset, tmp_path, capsys):
+    """`archive DATA/ OUT/ --pipeline p.toml`, p.toml edited, the same command again: the flags are the same,
+    the pipeline is not (its contents count as a setting)."""
+    data = tmp_path / "data"
+    shutil.copytree(dataset / "synthetic", data)
+    toml = tmp_path / "p.toml"
+    toml.write_text('[[stage]]\nkind = "stcf"\n')
+    argv = ["archive", str(data), str(tmp_path / "out"), "--pipeline", str(toml), "--end-us", "50000",
+            "--scheduler", client.scheduler.address, "--quiet"]
+    assert main(argv) == 0
+    assert main(argv) == 0
+    assert "0 done, 3 skipped" in capsys.readouterr().out
+    toml.write_text('[[stage]]\nkind = "baf"\n')
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "3 done (3 redone), 0 skipped" in printed and f"settings changed: {toml} was edited" in printed
+
+
 def test_frames_convert_and_eval_reruns_follow_their_settings(client, dataset, tmp_path, capsys):
     """The same for `frames`, `convert` and `eval --out`: a changed flag makes the recordings again."""
     data = tmp_path / "data"

@@ -102,7 +102,8 @@ def run_tasks(args, tasks: list[batch.Task], work: Callable, params: dict, on_re
     with StopOnSignal() as stop:
         try:
             results = batch.run_many(tasks, work, params, jobs=args.jobs, scheduler=args.scheduler, force=args.force,
-                                     on_result=on_result, warm=warm, stop=lambda: stop.signum)
+                                     on_result=on_result, warm=warm, stop=lambda: stop.signum,
+                                     reads=[getattr(args, f, None) for f in ("pipeline", "model")])
         finally:
             progress.done()
     return results, stop.signum
@@ -174,6 +175,9 @@ def why_redone(r: batch.TaskResult) -> str:
         return r.redone
     said = []
     for key, (before, now) in r.changed.items():
+        if key.startswith("contents of "):
+            said.append(f"{key[len('contents of '):]} was edited")
+            continue
         flag = "the task's function" if key == "work" else "--set" if key == "settings" else \
             "--" + key.replace("_", "-")
         said.append(f"{flag} {_value(before)} -> {_value(now)}")
