@@ -186,6 +186,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "EVT3 decoder: has_high = 2 for 1 (only ever tested for truth); a TIME_HIGH equal to the last one "
     "(payload <= high) drops by 0, never a wrap": [
         f"evstream.codecs.evt3.x__decode_kernel__mutmut_{n}" for n in (32, 204)],
+    "EVT2 skip kernel: has_high = 2 for 1 (only ever tested for truth, in both EVT2 kernels)": [
+        "evstream.codecs.evt2.x__skip_kernel__mutmut_40"],
     "Evt2Encoder: np.array([-1]) is int64 without the dtype; -2 for -1 as 'no TIME_HIGH written yet' "
     "(cur >= 0 decides, and either starts from 0)": [
         f"evstream.codecs.evt2.xǁEvt2Encoderǁ__init____mutmut_{n}" for n in (3, 5, 7)],

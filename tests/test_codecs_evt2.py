@@ -192,3 +192,44 @@ def test_encoder_refuses_negative_coordinates_and_names_an_event_by_its_place_in
         enc.encode(*_at(6, 5))
     with pytest.raises(ValueError, match=r"^encode: arrays differ in length \(t 2, x 2, y 2, p 1\)$"):
         enc.encode(*(a[: 1 if k == 3 else 2] for k, a in enumerate(_at(7, 8))))
+
+
+def reference_skip(words: list[int], start_us: int):
+    """Plain-Python `_skip_kernel`: the index of the first TIME_HIGH whose period can reach start_us (its
+    base + 63 >= start_us, a wrap at that word counted in), and the time base and wraps standing before it."""
+    high = loops = wraps = 0
+    has_high = False
+    for i, w in enumerate(words):
+        if w >> 28 == 8:
+            new = w & 0xFFFFFFF
+            wrap = has_high and high - new >= 1 << 27
+            if ((loops + wrap) << 34) + (new << 6) + 63 >= start_us:
+                return i, (loops << 34) + (high << 6), wraps
+            high, loops, wraps, has_high = new, loops + wrap, wraps + wrap, True
+    return len(words), (loops << 34) + (high << 6), wraps
+
+
+@given(st.lists(word, max_size=200), st.integers(-1, 3 << 34), st.integers(1, 9))
+@example([H | 0xFFFFFFF, _cd(1), H | 5, _cd(2), H | 6, _cd(3)], (1 << 34) + (6 << 6), 2)  # past a wrap
+@example([H | 7, _cd(1), H | 7, _cd(2)], (7 << 6) + 63, 1)  # the first TIME_HIGH's last µs
+@example([H | 1 << 27, _cd(1), H, _cd(2), H | 1 << 26, H | (1 << 26) + 5, _cd(3), H | 0xFFFFFFF, H | 1, _cd(4),
+          H | 2, _cd(5)], (2 << 34) + (2 << 6), 3)  # a drop of exactly 2^27 wraps, a rise never; 2 wraps skipped
+def test_skip_before_matches_reference(words, start_us, n_blocks):
+    """Skipping ahead, the bytes left start at the reference's TIME_HIGH (in blocks of any size too), the
+    time base and wraps are the reference's, and decoding on gives what decoding from the start gives."""
+    data = np.array(words, "<u4").tobytes()
+    i, time_us, wraps = reference_skip(words, start_us)
+    dec = evt2.Evt2Decoder()
+    rest = dec.skip_before(data, start_us)
+    assert rest == (None if i == len(words) else data[4 * i:])
+    assert (dec.time_us, dec.counters["wraps"]) == (time_us, wraps)
+    fresh = evt2.Evt2Decoder()
+    fresh.decode(data[: 4 * i])
+    assert_events_equal(dec.decode(rest or b""), fresh.decode(data[4 * i:]))
+    step = max(4, len(data) // n_blocks)
+    blocks = [data[a : a + step] for a in range(0, len(data), step)]
+    dec = evt2.Evt2Decoder()
+    left = None
+    while blocks and left is None:
+        left = dec.skip_before(blocks.pop(0), start_us)
+    assert (left or b"") + b"".join(blocks) == (b"" if i == len(words) else data[4 * i:])
