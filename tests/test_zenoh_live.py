@@ -764,3 +764,50 @@ def test_one_denoise_node_per_camera_in_processes_of_their_own(procs, tmp_path):
         assert [mine["events_signal"], mine["events_background"], mine["events_hot_pixel"]] == alone["counts"]
         assert clean["cameras"][cam]["events"] == mine["events_signal"] and clean["cameras"][cam]["missing"] == 0
         assert_same_events(open_source(tmp_path / f"clean_{cam}.mcap"), alone["kept"])
+
+
+def test_a_packet_whose_events_go_back_or_leave_the_sensor_is_malformed_and_changes_nothing():
+    """Packets through a real Zenoh session (its own subscriber), taken by `ZenohSubscription.handle`: events
+    earlier than the camera's last accepted one, time going back inside a packet, or a coordinate outside
+    the sensor are one `malformed` each; the camera's time and sequence move on only with good packets."""
+    from evstream.sources.zenoh_sub import LivePacket, ZenohSubscription
+
+    g_w, g_h = 16, 8
+    n = 50
+    t = np.arange(1000, 1000 + 10 * n, 10, dtype=np.int64)
+    x = (np.arange(n) % g_w).astype(np.uint16)
+    y = (np.arange(n) % g_h).astype(np.uint16)
+    p = (np.arange(n) % 2).astype(np.uint8)
+
+    def packet(tt, xx, seq, encoding="evt3"):  # (EVT3's encoder refuses what is wrong: mono carries it)
+        return encode_packet(to_packet(tt, xx, y, p, width=g_w, height=g_h, seq=seq, encoding=encoding))
+
+    later = t + 10 * n
+    inner_back = t.copy()
+    inner_back[20:] -= 100  # steps back by 100 µs at event 20, still after the first packet's time base
+    wide = x.copy()
+    wide[7] = g_w  # one column past the sensor
+    sent = [(packet(t, x, 0), True), (packet(t - 400, x, 1), False), (packet(later, wide, 1, "mono"), False),
+            (packet(inner_back + 10 * n, x, 1, "mono"), False), (packet(later, x, 1), True)]
+    port = free_port()
+    session = open_session(mode="peer", listen=[f"tcp/127.0.0.1:{port}"])
+    try:
+        sub = ZenohSubscription("evstream/cam/events", session=session, warn=lambda m: None)
+        for data, _ in sent:
+            session.put("evstream/cam/events", data)
+        got = []
+        deadline = time.monotonic() + 20
+        while len(got) < len(sent) and time.monotonic() < deadline:
+            sample = sub._sub.try_recv()
+            if sample is None:
+                time.sleep(0.01)
+                continue
+            got.append(sub.handle(sample))
+        sub.close()
+    finally:
+        session.close()
+    assert [isinstance(item, LivePacket) for item in got] == [ok for _, ok in sent]
+    st = sub.cameras["cam"]
+    assert st.malformed == 3 and st.packets == 2 and st.events == 2 * n
+    assert st.restarts == 0 and st.gaps == 0 and st.last_seq == 1 and st.last_t == int(later[-1])
+    assert np.array_equal(got[-1].chunk.t, later)

@@ -171,7 +171,7 @@ class PacketDecoder:
                 dec = evt3.Evt3Decoder()
                 t, x, y, p = dec.decode(packet.events)
                 if len(t):  # time_base is the first event's time: that places the packet's clock
-                    t = t + (packet.time_base // _NS_PER_US - int(t[0]))
+                    t += packet.time_base // _NS_PER_US - int(t[0])  # the decoder's own new array
                 counts = dec.counters
             else:
                 before = self._stream.counters
