@@ -243,12 +243,12 @@ def test_train_says_where_it_is_when_its_output_is_piped(tmp_path):
     import sys
 
     out = tmp_path / "m.npz"
-    proc = subprocess.Popen([sys.executable, "-m", "evstream.cli", "train", "recordings/bar.npz", "--out", str(out),
-                             "--events-per-stream", "3000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, cwd=Path(__file__).resolve().parents[1])
+    proc = subprocess.Popen([sys.executable, "-m", "evstream.cli", "train", "recordings/bar.npz", "recordings/ball.npz",
+                             "--out", str(out), "--events-per-stream", "3000"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[1])
     try:
         first = proc.stderr.readline()
-        assert first.startswith("evstream train: ") and "reading 1 recording(s)" in first, first
+        assert first.startswith("evstream train: ") and "reading 2 recording(s)" in first, first
         assert not out.exists()  # said before the work, not after
         rest = proc.communicate(timeout=600)[1]
     finally:
@@ -258,7 +258,9 @@ def test_train_says_where_it_is_when_its_output_is_piped(tmp_path):
     lines = [first.rstrip("\n"), *rest.splitlines()]
     assert "\r" not in rest and "\x1b" not in rest  # plain lines for a log, not a terminal's bar
     assert all(line.startswith("evstream train: ") for line in lines), lines
-    assert sum(" seed " in line for line in lines) == 6 and "fitting logistic" in lines[-1], lines
+    assert sum(" seed " in line for line in lines) == 12 and "fitting logistic" in lines[-3], lines
+    assert [line.split(": ", 2)[2] for line in lines[-2:]] == [  # the cross-fitting, a fit per recording
+        "operating points: bar left out (1 of 2 fits)", "operating points: ball left out (2 of 2 fits)"], lines
     quiet = subprocess.run([sys.executable, "-m", "evstream.cli", "train", "recordings/bar.npz", "--out",
                             str(tmp_path / "q.npz"), "--events-per-stream", "3000", "--quiet"], capture_output=True,
                            text=True, cwd=Path(__file__).resolve().parents[1])

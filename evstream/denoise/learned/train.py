@@ -229,13 +229,14 @@ def _keep_at(model: Model, S: Samples, thresholds: np.ndarray) -> np.ndarray:
 
 
 def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model,
-              rows: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+              rows: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, dict]:
     """Thresholds of `final` for KEEP_GRID that transfer to recordings it was not fitted on.
 
     With one recording: the training quantiles themselves. With more: for each recording, a model fitted
     on the others gives the signal kept on it at each of that model's own training thresholds; the
     training level l(k) whose held-out keep averages k is then applied to `final`'s training scores.
-    `rows`: the rows whose signal the quantiles are taken on (default all; the fits use all rows)."""
+    `rows`: the rows whose signal the quantiles are taken on (default all; the fits use all rows).
+    `progress(message)`: called before each recording's fit."""
     C = S if rows is None else S.subset(rows)
     own_levels = np.median(_fold_levels(final, C, KEEP_GRID), axis=0)
     groups = np.unique(S.group)
@@ -243,7 +244,9 @@ def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model,
         return own_levels, {"calibration": "training quantiles (one recording)"}
     fine = np.round(np.arange(0.30, 0.9991, 0.0025), 4)  # training-level keeps to search
     held = []
-    for g in groups:
+    for i, g in enumerate(groups):
+        if progress:
+            progress(f"operating points: {S.names[g]} left out ({i + 1} of {len(groups)} fits)")
         fold = _fit(S.subset(S.group != g), kind, hidden, seed)
         thr = np.median(_fold_levels(fold, C.subset(C.group != g), fine), axis=0)
         held.append(_keep_at(fold, C.subset(C.group == g), thr))
@@ -265,12 +268,13 @@ def auc(score: np.ndarray, y: np.ndarray) -> float:
 
 
 def fit(S: Samples, kind: str = "logistic", hidden: int = 16, keep: float = 0.85, seed: int = 0,
-        calibrate_folds: bool = True, calibrate_rows: np.ndarray | None = None) -> Model:
+        calibrate_folds: bool = True, calibrate_rows: np.ndarray | None = None,
+        progress: Callable[[str], None] | None = None) -> Model:
     """A model fitted on all samples, its operating points calibrated (see `calibrate`; its quantiles
     taken on `calibrate_rows`, default all)."""
     model = _fit(S, kind, hidden, seed)
     if calibrate_folds:
-        thr, info = calibrate(S, kind, hidden, seed, model, calibrate_rows)
+        thr, info = calibrate(S, kind, hidden, seed, model, calibrate_rows, progress)
     else:
         thr, info = np.median(_fold_levels(model, S, KEEP_GRID), axis=0), {"calibration": "training quantiles"}
     model.threshold_grid = np.asarray(thr, np.float32).astype(np.float64)
@@ -305,7 +309,7 @@ def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: 
     S.X[:, [FEATURES.index(f) for f in without]] = 0.0  # constant: standardised to 0, Newton keeps w = 0
     if progress:
         progress(f"fitting {kind} on {len(S.y):,} events")
-    model = fit(S, kind, hidden, keep, seed)
+    model = fit(S, kind, hidden, keep, seed, progress=progress)
     sources = sources or {}
     model.meta.update({
         "name": "trained",
