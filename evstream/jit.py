@@ -107,6 +107,21 @@ class Kernel:
     def __repr__(self):
         return f"Kernel({self.key})"
 
+    def __reduce__(self):
+        """Pickled as its key: numba hashes a kernel's closure values into its cache's index, and a kernel
+        factory may close over another kernel (the same key, the same compiled code)."""
+        if self.key is None:
+            raise TypeError(f"{self.py_func.__qualname__}: a kernel without a key cannot be pickled")
+        return _kernel_by_key, (self.key,)
+
+
+def _kernel_by_key(key: str) -> Kernel:
+    """The live kernel of this key (`Kernel.__reduce__`)."""
+    for kernel in list(KERNELS):
+        if kernel.key == key:
+            return kernel
+    raise LookupError(f"no kernel {key} in this process")
+
 
 class Bound:
     """A kernel with its middle arguments fixed (a stage's state arrays and parameters), their types keyed
@@ -203,6 +218,10 @@ def kernel_key(py_func) -> str | None:
     values = []
     for cell in cells:
         v = cell.cell_contents
+        if isinstance(v, Kernel):  # a kernel calling another kernel its factory was given: that one's key
+            if v.key is None:
+                return None
+            v = v.key
         if not _plain_value(v):
             return None
         values.append(v)

@@ -253,6 +253,20 @@ def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept():
     assert ((score >= 1) == (got == 0)).all()
 
 
+@pytest.mark.parametrize("bounds", [[0, 12_000], [0, 3_000, 12_000]])
+def test_cascade_grows_both_fifos_within_one_call_with_the_same_classes(bounds):
+    """The cascade's kernel stops when either stage's FIFO is full; the stage grows it and the call goes on
+    where it stopped (the coarse stage from its next event, the fine one without gathering again)."""
+    s = random_stream(3, 12_000, G, mean_dt_us=0.02)  # one coarse window, > 4,096 fine activations held at once
+    coarse, fine = {"window_us": 10**6, "rho_rel": 0.1}, {"rate_hz": 1e6, "n_bins": 200, "lam": 0.05}
+    cascade = PaperCascade(coarse=coarse, fine=fine)
+    got = np.concatenate([cascade(c).cls for c in split(s, bounds)])
+    assert len(cascade.density._state["fifo_t"]) > 4096 and len(cascade.timeseries._state["fifo_pos"]) > 4096
+    one_by_one = TimeSeriesFilter(**fine)(DensityFilter(**coarse)(s)).cls  # the stages as a pipeline runs them
+    assert np.array_equal(got, one_by_one)
+    assert np.all(np.bincount(got, minlength=3) > 0)
+
+
 @given(seed=st.integers(0, 2**32), block=st.integers(1, 700), earlier=st.booleans())
 def test_a_chunk_larger_than_a_block_gets_the_same_classes(seed, block, earlier):
     """A chunk longer than `block_events` runs through both stages block by block: same classes."""

@@ -296,11 +296,7 @@ class DensityFilter(InPlaceClassifier):
         """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores.
         `all_live`: the caller knows whether every code is SIGNAL (None: test it). The parameters are
         read when the state is built, on the first chunk: the per-call cost is the kernel's dispatch."""
-        s = self._state
-        g = chunk.geometry
-        if s is None or (s["geometry"] is not g and s["geometry"] != g):
-            s = self._state = self._init(chunk)
-            self._bind()
+        self._ready(chunk)
         if all_live is None:
             all_live = not np.count_nonzero(codes)
         variant = (want_score, all_live)
@@ -317,9 +313,20 @@ class DensityFilter(InPlaceClassifier):
             i = call(t, x, y, p, i, codes, *more)
             if i >= n:
                 return score
-            grow_fifo(s, ("fifo_t", "fifo_pos") if self._far else ("fifo_t", "fifo_x", "fifo_y"))
-            self._bind()
+            self._grow()
             call = self._calls.setdefault(variant, self._bound(variant))
+
+    def _ready(self, chunk: EventChunk) -> None:
+        """The state for the chunk's geometry, built (and the kernel's arguments bound) on the first chunk."""
+        s, g = self._state, chunk.geometry
+        if s is None or (s["geometry"] is not g and s["geometry"] != g):
+            self._state = self._init(chunk)
+            self._bind()
+
+    def _grow(self) -> None:
+        """Double the FIFO the kernel filled (it returned early) and bind the new arrays."""
+        grow_fifo(self._state, ("fifo_t", "fifo_pos") if self._far else ("fifo_t", "fifo_x", "fifo_y"))
+        self._bind()
 
     def _bind(self) -> None:
         """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
@@ -334,8 +341,11 @@ class DensityFilter(InPlaceClassifier):
     def _bound(self, variant: tuple) -> object:
         """The kernel for `variant` = (want_score, all_live) with this state bound (evstream.jit.bind)."""
         want_score = variant[0]
-        return bind(density_kernel(*self._options, *variant, self._far), 6,
-                    self._args if want_score else (*self._args, _NO_SCORE))
+        return bind(self._kernel(*variant), 6, self._args if want_score else (*self._args, _NO_SCORE))
+
+    def _kernel(self, want_score: bool, all_live: bool):
+        """The kernel compiled for these options and this state (after `_ready`)."""
+        return density_kernel(*self._options, want_score, all_live, self._far)
 
 
 _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it

@@ -217,16 +217,9 @@ class TimeSeriesFilter(InPlaceClassifier):
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool) -> np.ndarray:
         """Classify the events of `chunk` whose `codes` are SIGNAL, in place; returns the scores. The
         parameters are read when the state is built, on the first chunk."""
-        s = self._state
-        g = chunk.geometry
-        if s is None or (s["geometry"] is not g and s["geometry"] != g):
-            s = self._state = self._init(g)
-            self._bind()
         n = len(chunk)
+        self._ready(chunk, n)
         score = np.zeros(n, np.float64) if want_score else _NO_SCORE
-        if len(s["live"]) < min(n, BLOCK_EVENTS):  # kept up to KEPT_LIVE: a chunk call allocates nothing
-            s["live"] = np.empty(min(max(n, 2 * len(s["live"])), BLOCK_EVENTS), np.int64)  # written before read
-            self._bind()
         t, x, y = chunk.t, chunk.x, chunk.y
         if n <= BLOCK_EVENTS:
             self._judge(want_score, t, x, y, codes, score)
@@ -234,21 +227,39 @@ class TimeSeriesFilter(InPlaceClassifier):
             for a in range(0, n, BLOCK_EVENTS):
                 b = a + BLOCK_EVENTS
                 self._judge(want_score, t[a:b], x[a:b], y[a:b], codes[a:b], score[a:b] if want_score else score)
-        if len(s["live"]) > KEPT_LIVE:  # a long chunk's buffer is not kept as state (up to 8 MB)
-            s["live"] = np.zeros(0, np.int64)
-            self._bind()
+        self._release()
         return score
+
+    def _ready(self, chunk: EventChunk, n: int) -> None:
+        """The state for the chunk's geometry (built on the first chunk), its live buffer for `n` events."""
+        s, g = self._state, chunk.geometry
+        if s is None or (s["geometry"] is not g and s["geometry"] != g):
+            s = self._state = self._init(g)
+            self._bind()
+        if len(s["live"]) < min(n, BLOCK_EVENTS):  # kept up to KEPT_LIVE: a chunk call allocates nothing
+            s["live"] = np.empty(min(max(n, 2 * len(s["live"])), BLOCK_EVENTS), np.int64)  # written before read
+            self._bind()
+
+    def _release(self) -> None:
+        """A long chunk's live buffer is not kept as state (up to 8 MB)."""
+        if len(self._state["live"]) > KEPT_LIVE:
+            self._state["live"] = np.zeros(0, np.int64)
+            self._bind()
+
+    def _grow(self) -> None:
+        """Double the activation FIFO the kernel filled (it returned early) and bind the new array."""
+        grow_fifo(self._state, ("fifo_pos",))
+        self._bind()
 
     def _judge(self, want_score, t, x, y, codes, score) -> None:
         resume = False
         more = (score,) if want_score else ()  # the class-only kernel's score argument is bound with the state
         while True:
             call = self._calls.get(want_score) or self._calls.setdefault(want_score, bind(
-                dc_kernel(self._options, want_score), 5, self._args if want_score else (*self._args, _NO_SCORE)))
+                self._kernel(want_score), 5, self._args if want_score else (*self._args, _NO_SCORE)))
             if call(t, x, y, resume, codes, *more):
                 return
-            grow_fifo(self._state, ("fifo_pos",))
-            self._bind()
+            self._grow()
             resume = True
 
     def _bind(self) -> None:
@@ -260,6 +271,10 @@ class TimeSeriesFilter(InPlaceClassifier):
                       s["per_bin"], s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), self._above(),
                       s["span_x"], s["span_y"])
         self._calls = {}  # want_score -> the kernel's call with these arguments bound (evstream.jit.bind)
+
+    def _kernel(self, want_score: bool):
+        """The kernel compiled for these options and this state (after `_ready`)."""
+        return dc_kernel(self._options, want_score)
 
     def _above(self) -> np.ndarray:
         """The difference form's threshold in whole bins for each neighbour count n_nb: hot iff
