@@ -3,8 +3,9 @@ numba BAF, per-call overhead, state memory and quality.
 
 Stream: a synthetic scene (turntable at 346×260 for 1 s, bar at 1280×720 for 0.3 s) with 3 Hz/pixel
 background activity and 0.1 % hot pixels at 500–2000 Hz; chunks of 10k and 100k events and one call.
-Every case of one sensor size runs in the same process, interleaved round by round, and the best CPU
-time (`time.process_time`) of each is kept: on a shared machine, time spent preempted is not ours.
+Every case of one sensor size runs in the same process, interleaved round by round; the best and the
+median CPU time (`time.process_time`) of each are reported, and the ratios from both: on a shared
+machine, time spent preempted is not ours.
 Peers, same events, same chunks: dv-processing's BackgroundActivityNoiseFilter (2 ms, its default and
 BAF's) and KNoiseFilter (C++, `pip install -e '.[bench]'`; skipped, saying why, when absent) and a plain
 branch-free numba BAF written here (the floor a BAF stage can reach).
@@ -29,7 +30,7 @@ from evstream.events import EventChunk, Geometry
 from evstream.noise import NoiseSpec, inject
 from evstream.testing import state_nbytes
 
-from .common import best_cpu_s, noisy_scene, peak_alloc_bytes, report
+from .common import best_cpu_s, cpu_s, noisy_scene, peak_alloc_bytes, report
 
 CHUNKS = (10_000, 100_000, None)  # None: the whole stream in one call
 ROUNDS = int(os.environ.get("EVSTREAM_BENCH_ROUNDS", "5"))
@@ -111,7 +112,8 @@ def run() -> None:
         s = noisy_scene(name, g, duration)
         n = len(s)
         print(f"-- {name} {g}: {n:,} events, {n / (duration * 1e-6) / 1e6:.2f} M events/s of sensor time; "
-              f"best CPU time of {ROUNDS} interleaved rounds", flush=True)
+              f"best (and median) CPU time of {ROUNDS} interleaved rounds, load {os.getloadavg()[0]:.1f}; "
+              "ratios: from the best times / from the medians", flush=True)
         store, why = dv_store(s)
         if store is None:
             print(f"   (dv-processing skipped: {why})")
@@ -120,15 +122,20 @@ def run() -> None:
         # and the expiry loop's exit is always predicted (docs/method.md, "Throughput").
         even = s.replace(t=np.linspace(int(s.t[0]), int(s.t[-1]), n).astype(np.int64))
         cases["control: coarse, one call, evenly spaced times"] = lambda even=even: DensityFilter()(even)
-        best = best_cpu_s(cases, ROUNDS)
+        times = cpu_s(cases, ROUNDS)
+        best = {case: min(t) for case, t in times.items()}
+        median = {case: float(np.median(t)) for case, t in times.items()}
+
+        def vs(peer, case, best=best, median=median):  # the speed ratio, from the best times and the medians
+            return f"{best[peer] / best[case]:.2f}x / {median[peer] / median[case]:.2f}x"
+
         for case, sec in best.items():
             label = case.split(", ")[-1]
-            extra = {}
+            extra = {"median": f"{n / median[case] / 1e6:.1f}M"}
             if case.startswith("cascade") and f"dv BAF, {label}" in best:
-                extra = {"vs_dv_BAF": f"{best[f'dv BAF, {label}'] / sec:.2f}x",
-                         "vs_dv_KNoise": f"{best[f'dv KNoise, {label}'] / sec:.2f}x"}
+                extra.update(vs_dv_BAF=vs(f"dv BAF, {label}", case), vs_dv_KNoise=vs(f"dv KNoise, {label}", case))
             if case.startswith("BAF stage"):
-                extra = {"vs_plain_BAF": f"{best[f'plain numba BAF, {label}'] / sec:.2f}x"}
+                extra.update(vs_plain_BAF=vs(f"plain numba BAF, {label}", case))
             report(case, n / sec, **extra)
         for label, make in [("cascade (paper)", PaperCascade), ("coarse (density)", DensityFilter),
                             ("fine (DC)", TimeSeriesFilter)]:

@@ -59,18 +59,23 @@ def report(name: str, rate_hz: float, **extra) -> None:
     print(f"{name:<48} {rate_hz / 1e6:9.1f} M events/s  {more}", flush=True)
 
 
-def best_cpu_s(cases: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
-    """Each case's best CPU time over `rounds` interleaved rounds, after one warm-up run each (numba compiles).
+def cpu_s(cases: dict[str, Callable[[], object]], rounds: int) -> dict[str, list[float]]:
+    """Each case's CPU times over `rounds` interleaved rounds, after one warm-up run each (numba compiles).
     CPU time: on a shared machine, time spent preempted is not ours."""
-    best = dict.fromkeys(cases, float("inf"))
+    times: dict[str, list[float]] = {name: [] for name in cases}
     for fn in cases.values():
         fn()
     for _ in range(rounds):
         for name, fn in cases.items():
             t0 = time.process_time()
             fn()
-            best[name] = min(best[name], time.process_time() - t0)
-    return best
+            times[name].append(time.process_time() - t0)
+    return times
+
+
+def best_cpu_s(cases: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
+    """Each case's best CPU time over `rounds` interleaved rounds (`cpu_s`)."""
+    return {name: min(t) for name, t in cpu_s(cases, rounds).items()}
 
 
 def tonic_events(stream) -> tuple[np.ndarray, tuple[int, int, int]]:
