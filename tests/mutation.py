@@ -105,6 +105,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (4, 5, 7, 13)],
     "STCF top-k: inserting a timestamp equal to the k-th newest, or shifting past equal ones, leaves the "
     "same k newest values": [f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (16, 30)],
+    "Khodamoradi: visiting the column and row cells x+1-d / y+1-d for d in -1..1 visits the same three "
+    "cells each, and d = 0 is still the event's own column / row": [
+        f"evstream.denoise.khodamoradi.x_khodamoradi_kernel__mutmut_{n}" for n in (18, 45)],
     "want_score None for False, or the score computed and dropped: the same classes": [
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_2",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_5",

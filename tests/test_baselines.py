@@ -434,6 +434,19 @@ def _near(points, radius):
     return m
 
 
+
+def test_ynoise_neighbour_exactly_one_hot_window_back_is_not_around():
+    """The hot-pixel ratio counts neighbours active within the hot window (age < hot_window_us): one whose
+    last event is exactly hot_window_us old does not dilute a pixel firing alone, which stays HOT_PIXEL."""
+    f = {"window_us": 2000, "polarity_match": False, "hot_window_us": 50_000, "hot_min_events": 3, "hot_ratio": 0.8}
+    s = EventChunk.from_arrays([0, 48_000, 49_000, 49_500, 50_000], [5, 6, 6, 6, 6], [5] * 5, [1] * 5, SMALL)
+    codes, scores = YNoiseFilter(**f).classify_scored(s)
+    assert codes[-1] == HOT and scores[-1] == -1.0  # own 3 of 3 + 0 around; with the neighbour, 3 of 4 < 0.8
+    want = ref_ynoise(s, YNoiseFilter(**f))
+    np.testing.assert_array_equal(codes, want[0])
+    np.testing.assert_array_equal(scores, want[1])
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_scored_stage_call_matches_the_plain_call(name):
     """`scored` classifies like `stage(chunk)` and scores only the events still SIGNAL (NaN for others)."""
