@@ -61,8 +61,9 @@ recordings: $(STAMP)
 	$(BIN)/evstream synth bar recordings/bar.npz --duration-ms 500 --noise-ratio 0.5 --seed 3
 
 # The shipped learned model (docs/learned.md): the synthetic scenes and the MIT-licensed real recordings
-# only (no GPL or share-alike data in the weights); seeded, so the same bytes each time. --thin adds their
-# signal thinned to 30/10/3 %: sparser scenes, so that the model transfers to sensors unlike them.
+# only (no GPL or share-alike data in the weights); seeded, so the same bytes each time. --thin: their
+# signal thinned to 30/10/3 % (sparser scenes) sets the operating point, so that the threshold transfers
+# to sensors unlike them; the weights are fitted on the recordings as they are.
 # --without: the DC features stay out of the score (trained on this data they cost the transfer to
 # unseen sensors, docs/learned.md); the stage's DC hot-pixel rule still uses them.
 REAL ?= $(or $(EVSTREAM_REAL_DATA),../shared/data/real)

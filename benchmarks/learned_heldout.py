@@ -24,6 +24,7 @@ second half).
     python -m benchmarks.learned_heldout     # ~1 minute of CPU (6 minutes' wall under a load of 10)
     python -m benchmarks.learned_heldout --recipe base,aug,shipped
     python -m benchmarks.learned_heldout --recipe shipped,file:out/candidate.npz --families DVS128,DVXplorer,ATIS
+    python -m benchmarks.learned_heldout --recipe shipped --only family-out,noise --per-recording
 
 `--families` keeps only those families' recordings (for a trained recipe, also its training data).
 """
@@ -170,6 +171,8 @@ def main() -> None:
     ap.add_argument("--families", default="", help="score only these families' recordings (comma-separated, "
                     "e.g. DVS128,DVXplorer,ATIS: the real ones; the size tests are synthetic)")
     ap.add_argument("--only", default="", help="test groups to run (comma-separated; default all)")
+    ap.add_argument("--per-recording", action="store_true", help="also print each recording's EDP: the best "
+                    "rule's and each recipe's")
     a = ap.parse_args()
     recipes = a.recipe.split(",")
     recs = load_recordings()
@@ -206,6 +209,11 @@ def main() -> None:
                 v = np.array([row[r][k] for row in rows])
                 line += f"{100 * v.mean():12.1f} [{100 * v.min():4.0f}–{100 * v.max():3.0f}]  "
         print(line + f"  ({time.process_time() - t0:.0f} s)", flush=True)
+        if a.per_recording:
+            for (rec, _, _, _), row in zip(items, rows, strict=True):
+                rule = max(RULES, key=lambda m, row=row: row[m]["edp80"])
+                print(f"{'':<11}  {rec[:40]:<40}{rule:>10} {row[rule]['edp80']:5.1f}"
+                      + "".join(f"{row[r]['edp80']:11.1f}" for r in recipes), flush=True)
 
 
 if __name__ == "__main__":

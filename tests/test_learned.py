@@ -354,6 +354,23 @@ def test_thinned_copies_join_their_recording_and_leave_the_rest_unchanged():
         samples(recs, per_stream=1000, thin=(1.5,))
 
 
+def test_thinned_copies_set_the_operating_point_not_the_weights():
+    """`train(thin=...)`: the weights are fitted on the recordings as they are (the same as without
+    thinned copies); the thresholds are calibrated on the thinned copies too, so a sparse scene's lower
+    signal scores pull them down; `fit_thinned=True` fits the weights on the copies as well."""
+    from evstream import api
+    from evstream.denoise.learned.train import train
+
+    recs = {"bar": api.read("recordings/bar.npz")}  # one recording: its unthinned rows are the same
+    plain = train(recs, per_stream=1000)
+    thinned = train(recs, per_stream=1000, thin=(0.1,))
+    both = train(recs, per_stream=1000, thin=(0.1,), fit_thinned=True)
+    assert np.array_equal(thinned.w1, plain.w1) and np.array_equal(thinned.mean, plain.mean)
+    assert thinned.threshold(0.85) < plain.threshold(0.85)
+    assert not np.array_equal(both.w1, plain.w1)
+    assert thinned.meta["thinned_copies"] == "operating point only" and "thinned_copies" not in plain.meta
+
+
 def test_stretched_and_off_thinned_copies_join_their_recording():
     """`samples(time_scale=..., off_keep=...)`: more rows of the same recording under condition indices
     after the thinned copies'; the plain rows unchanged; a stretched copy spans `factor` × the time."""

@@ -104,8 +104,9 @@ def add_parser(sub) -> None:
     p.add_argument("--events-per-stream", type=int, default=20_000,
                    help="warm events sampled per recording and noise condition")
     p.add_argument("--thin", type=_fractions, default=(), metavar="F,F...",
-                   help="also train on each recording's signal thinned at random to these fractions "
-                        "(e.g. 0.3,0.1,0.03: sparser scenes; docs/learned.md)")
+                   help="calibrate the operating point on each recording's signal thinned at random to "
+                        "these fractions too (e.g. 0.3,0.1,0.03: sparser scenes; the weights are fitted on "
+                        "the recordings as they are; docs/learned.md)")
     p.add_argument("--without", type=lambda t: [w for w in t.split(",") if w], default=[], metavar="F,F...",
                    help="features the score leaves out (docs/learned.md: the shipped model leaves out the DC ones)")
     p.add_argument("--min-duration-s", type=float, default=0.0, help="skip shorter recordings")

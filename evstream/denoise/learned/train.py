@@ -70,8 +70,8 @@ def samples(recordings: dict[str, EventChunk], conditions: Iterable[Condition] =
 
     `thin`: each recording also enters with its signal thinned at random to each of these fractions
     (same recording group, so calibration folds keep a recording's copies together): sparser edges,
-    as a low-resolution or less sensitive sensor sees them, so that the model does not learn that
-    signal always comes in dense edges (docs/learned.md: the shipped model's transfer).
+    as a low-resolution or less sensitive sensor sees them, whose lower scores `train` lets set the
+    operating point (docs/learned.md: the shipped model's transfer).
     `time_scale`: copies with the timestamps stretched by each factor (2: a scene twice as slow);
     `off_keep`: copies keeping each fraction of the OFF events (a sensor biased towards ON). Both join
     the recording's group; their condition indices follow the thinned copies'."""
@@ -229,15 +229,18 @@ def _keep_at(model: Model, S: Samples, thresholds: np.ndarray) -> np.ndarray:
 
 
 def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model,
-              rows: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, dict]:
+              rows: np.ndarray | None = None, fit_rows: np.ndarray | None = None,
+              progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, dict]:
     """Thresholds of `final` for KEEP_GRID that transfer to recordings it was not fitted on.
 
     With one recording: the training quantiles themselves. With more: for each recording, a model fitted
     on the others gives the signal kept on it at each of that model's own training thresholds; the
     training level l(k) whose held-out keep averages k is then applied to `final`'s training scores.
-    `rows`: the rows whose signal the quantiles are taken on (default all; the fits use all rows).
-    `progress(message)`: called before each recording's fit."""
+    `rows`: the rows whose signal the quantiles are taken on (default all); `fit_rows`: the rows the
+    fold models are fitted on (default all; as `final` was). `progress(message)`: called before each
+    recording's fit."""
     C = S if rows is None else S.subset(rows)
+    F = S if fit_rows is None else S.subset(fit_rows)
     own_levels = np.median(_fold_levels(final, C, KEEP_GRID), axis=0)
     groups = np.unique(S.group)
     if len(groups) < 2:
@@ -247,7 +250,7 @@ def calibrate(S: Samples, kind: str, hidden: int, seed: int, final: Model,
     for i, g in enumerate(groups):
         if progress:
             progress(f"operating points: {S.names[g]} left out ({i + 1} of {len(groups)} fits)")
-        fold = _fit(S.subset(S.group != g), kind, hidden, seed)
+        fold = _fit(F.subset(F.group != g), kind, hidden, seed)
         thr = np.median(_fold_levels(fold, C.subset(C.group != g), fine), axis=0)
         held.append(_keep_at(fold, C.subset(C.group == g), thr))
     held_keep = np.mean(held, axis=0)  # held-out keep at each training-level keep in `fine`
@@ -269,12 +272,12 @@ def auc(score: np.ndarray, y: np.ndarray) -> float:
 
 def fit(S: Samples, kind: str = "logistic", hidden: int = 16, keep: float = 0.85, seed: int = 0,
         calibrate_folds: bool = True, calibrate_rows: np.ndarray | None = None,
-        progress: Callable[[str], None] | None = None) -> Model:
-    """A model fitted on all samples, its operating points calibrated (see `calibrate`; its quantiles
-    taken on `calibrate_rows`, default all)."""
-    model = _fit(S, kind, hidden, seed)
+        fit_rows: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> Model:
+    """A model fitted on the samples `fit_rows` (default all), its operating points calibrated (see
+    `calibrate`; its quantiles taken on `calibrate_rows`, default all)."""
+    model = _fit(S if fit_rows is None else S.subset(fit_rows), kind, hidden, seed)
     if calibrate_folds:
-        thr, info = calibrate(S, kind, hidden, seed, model, calibrate_rows, progress)
+        thr, info = calibrate(S, kind, hidden, seed, model, calibrate_rows, fit_rows, progress)
     else:
         thr, info = np.median(_fold_levels(model, S, KEEP_GRID), axis=0), {"calibration": "training quantiles"}
     model.threshold_grid = np.asarray(thr, np.float32).astype(np.float64)
@@ -294,7 +297,8 @@ def sha256(path) -> str:
 def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: int = 16, keep: float = 0.85,
           seed: int = 0, per_stream: int = 20_000, sources: dict[str, str] | None = None,
           conditions: Iterable[Condition] = TRAIN_CONDITIONS, thin: Iterable[float] = (),
-          without: Iterable[str] = (), progress: Callable[[str], None] | None = None) -> Model:
+          without: Iterable[str] = (), fit_thinned: bool = False,
+          progress: Callable[[str], None] | None = None) -> Model:
     """Inject noise into `recordings` (and their signal thinned to `thin`, see `samples`), compute
     features, fit and calibrate; provenance in `meta`. `without`: features the score leaves out
     (weight 0; the kernel still computes them, e.g. for the hot-pixel rules)."""
@@ -309,7 +313,10 @@ def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: 
     S.X[:, [FEATURES.index(f) for f in without]] = 0.0  # constant: standardised to 0, Newton keeps w = 0
     if progress:
         progress(f"fitting {kind} on {len(S.y):,} events")
-    model = fit(S, kind, hidden, keep, seed, progress=progress)
+    # the thinned copies set the operating point; the weights are fitted on the recordings as they are
+    # (fitted on the thinned copies too, the score ranked worse on sensors it never saw: docs/learned.md)
+    model = fit(S, kind, hidden, keep, seed, fit_rows=None if fit_thinned or not thin else S.cond < len(conditions),
+                progress=progress)
     sources = sources or {}
     model.meta.update({
         "name": "trained",
@@ -317,7 +324,8 @@ def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: 
                                            if n in sources else {})} for n in recordings],
         "noise_conditions": [c.name for c in conditions],
         "noise_seed": SEED_BASE + seed,
-        **({"signal_thinned_to": thin} if thin else {}),
+        **({"signal_thinned_to": thin, "thinned_copies": "fit and operating point" if fit_thinned
+            else "operating point only"} if thin else {}),
         **({"features_left_out": without} if without else {}),
         "events_per_stream": per_stream,
         "training_events": int(len(S.y)),
