@@ -73,11 +73,12 @@ def test_atomic_output_never_uses_an_existing_file_as_its_temporary(tmp_path):
         AtomicOutput(tmp_path / "out.raw", [tmp_path / "in.raw"])
 
 
-def corrupt_midway(src: Path, dst: Path) -> Path:
-    """A copy of the native recording `src` whose x member has one event off the sensor, half way."""
+def corrupt_midway(src: Path, dst: Path, at: int | None = None) -> Path:
+    """A copy of the native recording `src` whose x member has one event off the sensor, half way (or at
+    event `at`)."""
     s = events_of(src)
     x = s.x.copy()
-    x[len(x) // 2] = 60000
+    x[len(x) // 2 if at is None else at] = 60000
     native.save(dst, s.replace(x=x))
     return dst
 
@@ -103,8 +104,15 @@ def test_an_archive_that_failed_before_its_first_packet_leaves_no_part_file(tmp_
 
 @pytest.mark.parametrize("command", ["archive", "convert.npz", "convert.raw", "convert.h5", "replay"])
 def test_a_failed_run_leaves_the_old_output_as_it_was(tmp_path, capsys, command):
-    """`archive BAD.raw old.mcap` turned a valid old.mcap into 2 KB with no events."""
-    bad = corrupt_midway(SHIPPED, tmp_path / "bad.npz")
+    """`archive BAD.raw old.mcap` turned a valid old.mcap into 2 KB with no events. (archive reads a file in
+    chunks of FAST_CHUNK_EVENTS: its bad event comes after the first chunk, so that some packets were written
+    before it.)"""
+    from evstream.cli.common import FAST_CHUNK_EVENTS
+
+    src = ROOT / "recordings" / "turntable.npz" if command == "archive" else SHIPPED
+    at = FAST_CHUNK_EVENTS + 1_000 if command == "archive" else None
+    assert at is None or at < len(events_of(src))
+    bad = corrupt_midway(src, tmp_path / "bad.npz", at)
     name, _, ext = command.partition(".")
     out = tmp_path / {"archive": "old.mcap", "replay": "old.rrd"}.get(name, f"old.{ext}")
     out.write_bytes(b"the user's older file")
@@ -118,7 +126,7 @@ def test_a_failed_run_leaves_the_old_output_as_it_was(tmp_path, capsys, command)
     left = sorted(p.name for p in tmp_path.iterdir())
     if name == "archive":  # the archive up to the failure is kept beside, and the error says where
         assert f"the output up to there is in {out}.part" in line and f"{out.name}.part" in left
-        assert 0 < len(events_of(Path(f"{out}.part"))) < len(events_of(SHIPPED))
+        assert 0 < len(events_of(Path(f"{out}.part"))) < len(events_of(src))
     else:
         assert left == ["bad.npz", out.name]
 
