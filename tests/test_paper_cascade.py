@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from evstream.denoise import timeseries
 from evstream.denoise.cascade import PaperCascade
 from evstream.denoise.density import DensityFilter
 from evstream.denoise.timeseries import TimeSeriesFilter
@@ -19,6 +20,7 @@ from evstream.testing import (
     random_bounds,
     random_stream,
     split,
+    state_nbytes,
 )
 
 G = Geometry(24, 18)
@@ -265,6 +267,17 @@ def test_cascade_grows_both_fifos_within_one_call_with_the_same_classes(bounds):
     one_by_one = TimeSeriesFilter(**fine)(DensityFilter(**coarse)(s)).cls  # the stages as a pipeline runs them
     assert np.array_equal(got, one_by_one)
     assert np.all(np.bincount(got, minlength=3) > 0)
+
+
+def test_cascade_keeps_no_long_chunk_buffer():
+    """After a chunk longer than the fine stage's kept live buffer (KEPT_LIVE events), the cascade holds what
+    it held after short chunks: neither the stage nor the cascade's bound kernel call keeps the long one's."""
+    s = random_stream(4, 40_000, G, mean_dt_us=20)
+    short, long = PaperCascade(), PaperCascade()
+    for c in split(s, list(range(0, 40_001, 5_000))):
+        short(c)
+    long(s)
+    assert timeseries.KEPT_LIVE < len(s) and state_nbytes(long) <= state_nbytes(short)
 
 
 @given(seed=st.integers(0, 2**32), block=st.integers(1, 700), earlier=st.booleans())

@@ -120,6 +120,8 @@ class PaperCascade:
                 break
             (coarse if status == COARSE_FULL else fine)._grow()
         fine._release()
+        if self._call[1] is not fine._args:  # the bound call would keep a long chunk's live buffer alive
+            self._call = ()
 
     def classify_scored(self, chunk: EventChunk) -> tuple[np.ndarray, np.ndarray]:
         """Class codes and one signal-likeness score per event of an unclassified chunk, for ROC
