@@ -108,7 +108,14 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "Khodamoradi: visiting the column and row cells x+1-d / y+1-d for d in -1..1 visits the same three "
     "cells each, and d = 0 is still the event's own column / row": [
         f"evstream.denoise.khodamoradi.x_khodamoradi_kernel__mutmut_{n}" for n in (18, 45)],
+    "Khodamoradi's cells: NEVER_US without a dtype is int64; rows and polarities as float64 (np.zeros' "
+    "default: every value exact, compared equal to the event's) or one cell longer: the same decisions": [
+        f"evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_allocate__mutmut_{n}"
+        for n in (4, 7, 9, 11, 13, 15, 17, 19, 21, 25)],
     "want_score None for False, or the score computed and dropped: the same classes": [
+        "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_9",
+        "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁclassify__mutmut_2",
+        "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁclassify__mutmut_5",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_2",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_5",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_9",
@@ -116,6 +123,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.refractory.xǁRefractoryFilterǁclassify__mutmut_5",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_9"],
     "np.empty(n, None) and np.empty(n) are float64, the dtype given": [
+        "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_11",
+        "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_13",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_11",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_13",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_11",
@@ -126,7 +135,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.baf.xǁBackgroundActivityFilterǁclassify_scored__mutmut_11"],
     "the state set in __post_init__ is replaced by _allocate before its first use": [
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ__post_init____mutmut_42",
-        "evstream.denoise.refractory.xǁRefractoryFilterǁ__post_init____mutmut_15"],
+        "evstream.denoise.refractory.xǁRefractoryFilterǁ__post_init____mutmut_15",
+        "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ__post_init____mutmut_43",
+        "evstream.denoise.ynoise.xǁYNoiseFilterǁ__post_init____mutmut_90"],
     "to_events: astype(None) is float64, the dtype given; copy=True/None for copy=False changes no value; "
     "np.issubdtype(None, np.floating) holds, and an integer column always equals its floor": [
         f"evstream.sources._base.x_to_events__mutmut_{n}" for n in (20, 38, 40, 41, 58)],

@@ -1,6 +1,8 @@
 """Baseline denoisers: each numba kernel against a brute-force reference over the whole event history,
 the streaming invariants, parameter validation, and that each one actually removes its noise."""
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -258,6 +260,50 @@ def test_bad_parameters_are_refused_at_construction(spec):
     (param,) = set(spec) - {"kind"}
     with pytest.raises(ValueError, match=rf"^(stage '|){spec['kind']}'?: .*{param}"):
         build("stage", spec)
+
+
+
+@pytest.mark.parametrize("cls,ok,bad", [
+    (KhodamoradiFilter, [{"tau_us": 1, "polarity_match": np.bool_(True)}, {"k": 1}, {"k": 6},
+                         {"tau_us": np.int64(9), "polarity_match": np.bool_(False)}],
+     [({"tau_us": 0}, "tau_us must be a positive integer, got 0"),
+      ({"tau_us": 2.0}, "tau_us must be a positive integer, got 2.0"),
+      ({"tau_us": True}, "tau_us must be a positive integer, got True"),
+      ({"k": 0}, "k must be an integer in 1..6, got 0"), ({"k": 7}, "k must be an integer in 1..6, got 7"),
+      ({"k": 1.0}, "k must be an integer in 1..6, got 1.0"),
+      ({"polarity_match": 1}, "polarity_match must be a bool")]),
+    (YNoiseFilter, [{"window_us": 1, "radius_px": 8, "threshold": 1, "hot_window_us": 1}, {"radius_px": 1},
+                    {"count_cap": 64, "hot_min_events": 64, "hot_ratio": 1}, {"count_cap": 1, "hot_min_events": 1},
+                    {"hot_ratio": 1e-9, "polarity_match": np.bool_(True), "threshold": np.int64(5)}],
+     [({"window_us": 0}, "window_us must be an integer in 1..inf, got 0"),
+      ({"window_us": 1.0}, "window_us must be an integer in 1..inf, got 1.0"),
+      ({"radius_px": 0}, "radius_px must be an integer in 1..8, got 0"),
+      ({"radius_px": 9}, "radius_px must be an integer in 1..8, got 9"),
+      ({"count_cap": 0}, "count_cap must be an integer in 1..64, got 0"),
+      ({"count_cap": 65}, "count_cap must be an integer in 1..64, got 65"),
+      ({"threshold": 0}, "threshold must be an integer in 1..inf, got 0"),
+      ({"hot_window_us": 0}, "hot_window_us must be an integer in 1..inf, got 0"),
+      ({"hot_min_events": 0}, "hot_min_events must be an integer in 1..4, got 0"),
+      ({"hot_min_events": 5}, "hot_min_events must be an integer in 1..4, got 5"),
+      ({"count_cap": 6, "hot_min_events": 7}, "hot_min_events must be an integer in 1..6, got 7"),
+      ({"polarity_match": "yes"}, "polarity_match must be a bool"),
+      ({"hot_ratio": 0}, "hot_ratio must be in (0, 1], got 0"),
+      ({"hot_ratio": 1.01}, "hot_ratio must be in (0, 1], got 1.01"),
+      ({"hot_ratio": "0.5"}, "hot_ratio must be in (0, 1], got '0.5'")]),
+])
+def test_each_parameter_is_taken_to_its_limits_and_refused_past_them(cls, ok, bad):
+    """Every limit accepted, and one past it refused with its own message naming the stage; accepted
+    values kept as plain Python ints, floats and bools (the kernels' compile-time types)."""
+    plain = {np.int64: int, np.bool_: bool}
+    for kw in ok:
+        stage = cls(**kw)
+        for k, v in kw.items():
+            want = float if k == "hot_ratio" else plain.get(type(v), type(v))
+            assert getattr(stage, k) == v and type(getattr(stage, k)) is want
+    kind = "khodamoradi" if cls is KhodamoradiFilter else "ynoise"
+    for kw, why in bad:
+        with pytest.raises(ValueError, match=f"^{re.escape(f'{kind}: {why}')}$"):
+            cls(**kw)
 
 
 def test_geometry_change_is_refused():
