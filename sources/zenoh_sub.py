@@ -34,7 +34,7 @@ import zenoh
 from evstream.codecs.attachment import OURS, AttachmentError, decode_attachment
 from evstream.codecs.event_packet import PacketError, decode_packet
 from evstream.codecs.packets import PacketDecoder
-from evstream.events import EventChunk, EventError, Geometry
+from evstream.events import EventChunk, EventError, Geometry, concat
 from evstream.events import _first_invalid as first_invalid
 
 from ._base import MAX_SENSOR_SIDE
@@ -138,6 +138,21 @@ class End:
     key: str
 
 
+def _joins(batch: list[LivePacket], item: LivePacket, max_events: int) -> bool:
+    """Whether `item` continues `batch`'s stream: same camera and sensor, no restart, within `max_events`."""
+    first = batch[0]
+    return (item.camera == first.camera and not item.restart and item.chunk.geometry == first.chunk.geometry
+            and sum(len(p.chunk) for p in batch) + len(item.chunk) <= max_events)
+
+
+def _joined(batch: list[LivePacket]) -> LivePacket:
+    if len(batch) == 1:
+        return batch[0]
+    first, last = batch[0], batch[-1]
+    chunk = concat([p.chunk for p in batch], first.chunk.geometry)
+    return LivePacket(first.camera, first.key, chunk, last.seq, first.source_time_ns, first.restart)
+
+
 class ZenohSubscription:
     """Iterate over live packets on `keyexpr` (see the module docstring).
 
@@ -185,11 +200,23 @@ class ZenohSubscription:
         self._stopped.set()
 
     def __iter__(self) -> Iterator[LivePacket | End]:
+        return self.batches(0)
+
+    def batches(self, max_events: int) -> Iterator[LivePacket | End]:
+        """As iterating, but a camera's packets that are already waiting in the FIFO when one is taken come
+        as one `LivePacket` (events concatenated, up to `max_events`; its `source_time_ns` the first's, its
+        `seq` the last's): a consumer that fell behind pays its per-packet costs once for the backlog, and
+        nothing waits for a batch to fill. Each packet is still checked and counted alone (`handle`)."""
         last = time.monotonic()
         poll_s = 0.0002
+        batch: list[LivePacket] = []
         while not self._stopped.is_set() and not self.should_stop():
             sample = self._sub.try_recv()
             if sample is None:
+                if batch:  # nothing more waiting: hand on what was taken
+                    yield _joined(batch)
+                    batch = []
+                    continue
                 if self.idle_s is not None and time.monotonic() - last > self.idle_s:
                     return
                 time.sleep(poll_s)
@@ -198,8 +225,17 @@ class ZenohSubscription:
             last = time.monotonic()
             poll_s = 0.0002
             item = self.handle(sample)
-            if item is not None:
+            if item is None:
+                continue
+            if batch and not (isinstance(item, LivePacket) and _joins(batch, item, max_events)):
+                yield _joined(batch)
+                batch = []
+            if isinstance(item, LivePacket) and len(item.chunk) < max_events:
+                batch.append(item)
+            else:
                 yield item
+        if batch:
+            yield _joined(batch)
 
     def handle(self, sample) -> LivePacket | End | None:
         """One Zenoh sample -> a packet, an end mark, or None (bad input, counted and warned about)."""

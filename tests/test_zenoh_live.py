@@ -164,8 +164,9 @@ def test_chain_publisher_router_denoise_subscriber_conserves_events(procs, tmp_p
                              "--archive", str(tmp_path / "clean_{camera}.mcap"))
     raw = procs.subscriber(port, "evstream/*/events", "--denoise", "none", "--archive",
                            str(tmp_path / "raw_{camera}.mcap"), "--until-end", "2", "--idle-s", "40")
+    # a node slower than the publishers (--delay-ms after each item): it takes its backlog in batches
     node = procs.subscriber(port, "evstream/*/events", "--republish", "--wait-subscribers", "10", "--drain-s", "30",
-                            "--until-end", "2", "--idle-s", "40")
+                            "--until-end", "2", "--idle-s", "40", "--delay-ms", "20")
     pubs = {cam: procs.start("publish", str(path), "--key", f"evstream/{cam}/events", "--connect", ep,
                              "--speed", "0", "--wait-subscribers", "10", "--drain-s", "30", "--json")
             for cam, path in (("cam1", TURNTABLE), ("cam2", BAR))}
@@ -179,6 +180,7 @@ def test_chain_publisher_router_denoise_subscriber_conserves_events(procs, tmp_p
         assert got["events_signal"] + got["events_background"] + got["events_hot_pixel"] == n
         assert 0 < got["events_signal"] < n  # the paper's cascade removed noise, kept signal
         assert got["published_events"] == got["events_signal"]
+        assert got["published_packets"] * 2 < sent[cam]["packets"] == got["packets"]  # the backlog in batches
         clean = final_out["cameras"][cam]
         assert clean["events"] == got["events_signal"] and clean["missing"] == 0
         assert clean["latency_p99_ms"] >= clean["latency_p50_ms"] > 0
