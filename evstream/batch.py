@@ -235,8 +235,9 @@ def _shown(v) -> str:
 
 
 def _write_record(source: str, out: str, settings: dict, source_stamp: list[int] | None, command_line) -> None:
-    """After a task wrote `out`: how it was made, beside it (written whole; a run killed before this leaves
-    no record, or the last one, whose output stamp then no longer matches: either way the task is redone)."""
+    """After a task wrote `out`: how it was made, beside it (written whole). A run killed before this leaves
+    no record, or the last one, whose output stamp then no longer matches: either way a re-run finds an
+    output without a record and leaves it as it is (`redo_reason`: UNRECORDED) until `--force`."""
     from .safe_write import AtomicOutput
 
     record = {"source": source, "out": out, "settings": settings, "source_stamp": source_stamp,
@@ -418,8 +419,9 @@ def _call(work: Callable, source: str, out: str, params: dict, run: str | None, 
     if settings is not None and not stopped:
         try:
             _write_record(source, out, settings, source_stamp, params.get("command_line"))
-        except (OSError, ValueError) as e:  # the output is whole; without its record a re-run makes it again
-            said.append(f"{out}: no record of its settings written ({e}); a re-run makes it again")
+        except (OSError, ValueError) as e:  # the output is whole; without its record a re-run leaves it as it is
+            said.append(f"{out}: no record of its settings written ({e}); a re-run leaves it as it is, "
+                        "--force makes it again")
     return {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0, "interrupted": bool(stopped),
             "warnings": said}
 

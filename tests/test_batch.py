@@ -434,3 +434,25 @@ def test_tonics_aedat4_and_npy_of_one_recording_both_convert(client, real_data, 
     for ext in ("aedat4", "npy"):
         rec = data / f"dvxplorer_320x240_tonic.{ext}"
         assert len(events_of(out / f"{rec.name}.npz")["t"]) == len(events_of(rec)["t"]) > 1000
+
+
+def _write_out(source, out):
+    Path(out).write_bytes(Path(source).read_bytes())
+    return {}
+
+
+def test_an_unwritten_settings_record_says_what_a_rerun_does(tmp_path):
+    """The record beside an output could not be written (here a folder has its name): the task is done and
+    warns. The warning said "a re-run makes it again", but a re-run leaves an output without a record as it
+    is (redo_reason: UNRECORDED); the warning says that now, and --force."""
+    source, out = tmp_path / "rec.npz", tmp_path / "out" / "rec.mcap"
+    source.write_bytes(b"recording")
+    out.parent.mkdir()
+    batch.settings_file(out).mkdir()  # the record's name is taken
+    settings = batch.settings_of(_write_out, {})
+    got = batch._run_task(_write_out, str(source), str(out), {}, settings=settings)
+    assert got["ok"] and out.read_bytes() == b"recording"
+    [warning] = got["warnings"]
+    assert warning.startswith(f"{out}: no record of its settings written (")
+    assert warning.endswith("a re-run leaves it as it is, --force makes it again")
+    assert batch.redo_reason(batch.Task(str(source), str(out)), settings) == (False, batch.UNRECORDED, {})
