@@ -23,8 +23,8 @@ import os
 import weakref
 from pathlib import Path
 
-__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "check_not_input", "is_no_space",
-           "no_space_error", "numbered_name", "partial_name", "reading"]
+__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "cannot_write", "check_not_input",
+           "is_no_space", "no_space_error", "numbered_name", "partial_name", "reading"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
@@ -91,6 +91,16 @@ def no_space_error(target) -> OSError:
     return e
 
 
+def cannot_write(target, e: OSError) -> OSError:
+    """The one-line error for an output that cannot be created (a read-only disk or folder, no permission,
+    a full disk), naming the target, not its temporary."""
+    if is_no_space(e):
+        return no_space_error(target)
+    error = OSError(f"{os.fspath(target)}: cannot write there: {e.strerror or e}")
+    error.errno = e.errno
+    return error
+
+
 def _create_part(target: Path, folder: bool = False) -> Path:
     """A new, empty file (or `folder`) beside `target` that did not exist before (O_EXCL, mkdir): TARGET.part,
     TARGET.1.part, ..."""
@@ -103,6 +113,8 @@ def _create_part(target: Path, folder: bool = False) -> Path:
                 os.close(os.open(part, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except FileExistsError:
             continue
+        except OSError as e:  # Python's "[Errno 30] ...: 'TARGET.part'" named a file the user never typed
+            raise cannot_write(target, e) from None
         return part
     raise OSError(f"{target}: {_MAX_PART_NAMES} temporary {'folders' if folder else 'files'} {target.name}.N.part "
                   "are in the way; remove them")

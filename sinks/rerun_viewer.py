@@ -195,7 +195,7 @@ class _RrdFile:
         try:
             self.output = AtomicOutput(target, inputs, keep_existing=keep_existing)
         except OSError as e:  # a directory there, a folder not writable
-            reason = str(e).removeprefix(f"{target}: ")
+            reason = str(e).removeprefix(f"{target}: ").removeprefix("cannot write there: ")
             raise OSError(f"{target}: cannot write the Rerun recording: {reason}") from None
         try:
             rec.save(str(self.output.part))

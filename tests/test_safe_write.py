@@ -202,6 +202,43 @@ def test_a_full_disk_is_one_line_naming_the_file_and_nothing_is_left_under_its_n
         assert not list(full_disk.glob("*.part"))
 
 
+@pytest.fixture
+def read_only(tmp_path):
+    """A read-only tmpfs (root writes into a chmod-ed folder anyway; skipped where mounting is not allowed)."""
+    where = tmp_path / "ro"
+    where.mkdir()
+    if shutil.which("mount") is None:
+        pytest.skip("no mount command")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(where)], capture_output=True,
+                       text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a read-only tmpfs here (needs root): {r.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+READ_ONLY = {  # command line (the target last but for flags), target name
+    **{k: v for k, v in COMMANDS.items() if k != "replay"},
+    "replay": (["replay", SHIPPED, "--save", "{d}/r.rrd"], "r.rrd"),
+    "synth": (["synth", "bar", "{d}/s.npz", "--duration-ms", "50"], "s.npz"),
+    "train": (["train", SHIPPED, "--out", "{d}/m.npz", "--events-per-stream", "2000", "--quiet"], "m.npz"),
+}
+
+
+@pytest.mark.parametrize("command", list(READ_ONLY))
+def test_a_read_only_folder_is_one_line_naming_the_target(read_only, capsys, command):
+    """An output in a read-only folder said Python's "[Errno 30] Read-only file system: '/d/c.raw.part'":
+    a temporary file's name the user never typed (train's `.m.npz.tmp1234`). Now the target and the reason."""
+    argv, target = READ_ONLY[command]
+    rc, _, err = run([a.format(d=read_only) if isinstance(a, str) else a for a in argv], capsys)
+    assert rc == 1
+    line = one_line_error(err)
+    assert line.startswith(f"evstream: error: {read_only / target}: cannot write") and "Errno" not in line, line
+    assert line.endswith("Read-only file system"), line
+
+
 def test_a_rerun_recording_on_a_full_disk_ends_every_time(full_disk):
     """rerun-sdk 0.41's file writer, stopped by a full disk, left `flush()` waiting for ever in about half
     the runs (and the SDK's destructor and exit flush after it): replay --save hung. Six runs, each ends."""

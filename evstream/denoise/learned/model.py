@@ -13,7 +13,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ...events import shown
+from ...safe_write import AtomicOutput
 from .features import FEATURE_VERSION, FEATURES, N_FEATURES
 
 DEFAULT_MODEL = Path(__file__).with_name("default_model.npz")
@@ -81,7 +81,8 @@ class Model:
         return np.maximum(h, 0.0) @ self.w2 + self.b2
 
     def save(self, path) -> None:
-        """Write to `path` through a temporary file beside it (a failed write leaves the old file)."""
+        """Write to `path` through a temporary file beside it (a failed write leaves the old file;
+        evstream.safe_write)."""
         path = Path(path)
         buf = io.BytesIO()
         arrays = {k: np.asarray(getattr(self, k), np.float64) for k in ARRAYS if k != "b2"}
@@ -89,12 +90,8 @@ class Model:
         arrays["meta"] = np.array(json.dumps(self.meta, sort_keys=True))
         np.savez(buf, **arrays)
         data = _deterministic_zip(buf.getvalue())
-        tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-        try:
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
+        with AtomicOutput(path) as part:  # a read-only folder or a full disk: one line naming `path`
+            Path(part).write_bytes(data)
 
 
 def _deterministic_zip(data: bytes) -> bytes:
