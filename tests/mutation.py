@@ -111,11 +111,18 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "Khodamoradi's cells: NEVER_US without a dtype is int64; rows and polarities as float64 (np.zeros' "
     "default: every value exact, compared equal to the event's) or one cell longer: the same decisions": [
         f"evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_allocate__mutmut_{n}"
-        for n in (4, 7, 9, 11, 13, 15, 17, 19, 21, 25)],
+        for n in (4, 7, 9, 11, 13, 15, 17, 19, 21, 25, 28, 30, 32, 34, 36, 38, 40, 42)],
+    "YNoise's maps: padded by 3r instead of 2r at the far side (never read: a neighbourhood reaches r), "
+    "NEVER_US (the last times, the ring) without a dtype is int64, the last polarity as float64 "
+    "(compared equal to the event's)": [
+        f"evstream.denoise.ynoise.xǁYNoiseFilterǁ_allocate__mutmut_{n}" for n in (5, 8, 12, 15, 18, 20, 24, 27)],
     "want_score None for False, or the score computed and dropped: the same classes": [
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_9",
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁclassify__mutmut_2",
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁclassify__mutmut_5",
+        "evstream.denoise.ynoise.xǁYNoiseFilterǁ_run__mutmut_9",
+        "evstream.denoise.ynoise.xǁYNoiseFilterǁclassify__mutmut_2",
+        "evstream.denoise.ynoise.xǁYNoiseFilterǁclassify__mutmut_5",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_2",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_5",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_9",
@@ -125,6 +132,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "np.empty(n, None) and np.empty(n) are float64, the dtype given": [
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_11",
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_13",
+        "evstream.denoise.ynoise.xǁYNoiseFilterǁ_run__mutmut_11",
+        "evstream.denoise.ynoise.xǁYNoiseFilterǁ_run__mutmut_13",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_11",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_13",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_run__mutmut_11",
