@@ -9,6 +9,7 @@ bounded in memory (see `evstream.testing`).
 from __future__ import annotations
 
 import dataclasses
+import errno
 import importlib
 import inspect
 import time
@@ -259,8 +260,14 @@ class Pipeline:
 
     @classmethod
     def from_toml(cls, path) -> Pipeline:
-        """From a TOML file: `[[stage]] kind = "density" window_us = 20000` ... `[framer] kind = "fw"`."""
-        with open(path, "rb") as f:
+        """From a TOML file: `[[stage]] kind = "density" window_us = 20000` ... `[framer] kind = "fw"`. A file
+        that cannot be read is an OSError of its kind saying so in one line, naming `path`."""
+        try:
+            f = open(path, "rb")
+        except OSError as e:  # was Python's "[Errno 2] No such file or directory: 'p.toml'"
+            why = {errno.ENOENT: "no such pipeline file", errno.EISDIR: "is a folder, not a pipeline file"}
+            raise type(e)(f"{path}: {why.get(e.errno, e.strerror or e)}") from None
+        with f:
             try:
                 config = tomllib.load(f)
             except tomllib.TOMLDecodeError as e:

@@ -551,3 +551,13 @@ def test_eval_real_names_a_folder(tmp_path, capsys):
         rc, _, err = run(["eval", "--real", given], capsys)
         assert rc == 2
         assert one_line_error(err).startswith(f"evstream: error: --real {given}: {why} (--real DIR: every readable")
+
+
+def test_a_pipeline_file_that_is_not_there_or_a_folder_is_one_line_naming_it(tmp_path, capsys):
+    """`--pipeline p.toml` with no such file said Python's "[Errno 2] No such file or directory: 'p.toml'"
+    (a folder: "[Errno 21] Is a directory"), and so did every row of a many-recording run."""
+    for given, why in ((tmp_path / "p.toml", "no such pipeline file"), (tmp_path, "is a folder, not a pipeline file")):
+        rc, _, err = run(["replay", SHIPPED, "--pipeline", given, "--save", tmp_path / "x.rrd"], capsys)
+        assert rc == 1
+        assert one_line_error(err) == f"evstream: error: {given}: {why}"
+    assert not (tmp_path / "x.rrd").exists()
