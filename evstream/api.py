@@ -17,6 +17,7 @@ The command line (`evstream.cli`) is a thin shell over these functions.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from collections.abc import Iterable, Iterator
 from typing import Any
 
@@ -45,7 +46,9 @@ def open(path, *, geometry=None, timestamps: str | None = None,  # noqa: A001 - 
         options["geometry"] = as_geometry(geometry)
     if timestamps is not None:
         options["timestamps"] = timestamps
-    if chunk_events is not None:
+    if chunk_events is not None:  # int() made 2.5 two events a chunk and True one, without a word
+        if isinstance(chunk_events, bool) or not isinstance(chunk_events, numbers.Integral) or chunk_events < 1:
+            raise ValueError(f"chunk_events={chunk_events!r}: a whole number of events, at least 1")
         options["chunk_events"] = int(chunk_events)
     source = open_source(path, **options)
     reading(source, path)  # `open_sink` will not write over it while it is alive

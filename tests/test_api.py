@@ -212,6 +212,14 @@ def test_open_cuts_the_chunks_it_is_asked_for():
     assert sum(sizes) == len(whole) and set(sizes[:-1]) == {7_000} and 0 < sizes[-1] <= 7_000
 
 
+@pytest.mark.parametrize("given", [2.5, True, 0, -3, "100"])
+def test_open_refuses_a_chunk_size_that_is_not_a_whole_number_of_events(given):
+    """`chunk_events=2.5` read 2-event chunks and `True` 1-event ones (int() of what was given), without a word."""
+    with pytest.raises(ValueError, match=r"chunk_events=.*: a whole number of events, at least 1"):
+        evstream.open(BAR, chunk_events=given)
+    assert [len(c) for c in evstream.open(BAR, chunk_events=np.int64(50_000))][0] == 50_000
+
+
 def test_open_sink_refuses_the_recording_a_script_reads(tmp_path):
     """`src = evstream.open(A)` then `open_sink(A)` (or a link to A) wrote over the recording being read."""
     import gc
