@@ -50,8 +50,7 @@ def cmd_eval(args) -> int:
 
     check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
     if args.real and not Path(args.real).is_dir():  # was Python's "[Errno 20] Not a directory: 'X'"
-        raise UsageError(f"--real {args.real}: {'not a folder' if Path(args.real).exists() else 'no such folder'} "
-                         "(--real DIR: every readable recording in a folder; name recordings without it)")
+        raise UsageError(f"--real {args.real}: {'not a folder' if Path(args.real).exists() else 'no such folder'}")
     inputs = batch.files_named([*args.recordings, *([args.real] if args.real else [])])
     for flag, out in (("--json", args.json), ("--roc", args.roc)):  # before minutes of work, not after
         if out:
@@ -61,8 +60,7 @@ def cmd_eval(args) -> int:
                 if not Path(out).parent.exists():
                     Path(out).parent.mkdir(parents=True)
                 existed = Path(out).exists()
-                with open(out, "a"):
-                    pass
+                open(out, "a").close()
                 if not existed:  # only a probe: no empty file left behind if the run fails
                     Path(out).unlink()
             except OSError as e:
@@ -116,8 +114,7 @@ def cmd_eval(args) -> int:
             evaluation.plot_roc(curves, condition, args.roc)
             print(f"wrote {args.roc}")
         except ImportError:
-            print("evstream eval: matplotlib is not installed; no ROC plot (pip install matplotlib)",
-                  file=sys.stderr)
+            print("evstream eval: no ROC plot: matplotlib is not installed (pip install matplotlib)", file=sys.stderr)
     return 0
 
 
