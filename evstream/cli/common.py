@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import signal
 import sys
 from pathlib import Path
 
@@ -38,11 +39,8 @@ def reader_options(args) -> dict:
     return options
 
 
-# Chunks of a file read as fast as possible (`--speed 0`) by `archive`: on threads (evstream.threads) each chunk
-# costs every thread a hand-off, Python and a wait for the GIL; with 50,000-event chunks the three threads
-# waited on each other and the run was no faster than one thread. Measured in one process (run only, 10 M
-# events, .raw, near-quiet): serial 0.43-0.50 s; threaded, 50,000-event chunks 0.45-0.60 s, 200,000 0.34-0.36 s
-# (docs/archive.md). Paced runs keep the readers' chunks: a chunk is released when its last event is due.
+# Chunks of a file `archive` reads as fast as possible (--speed 0): each costs its threads a hand-off and a GIL wait
+# (50,000 ran no faster threaded than serial; 200,000 did, docs/archive.md). Paced runs keep the readers' chunks.
 FAST_CHUNK_EVENTS = 200_000
 
 
@@ -265,15 +263,11 @@ class StopOnSignal:
         self._old = {}
 
     def __enter__(self):
-        import signal
-
         for s in (signal.SIGINT, signal.SIGTERM):
             self._old[s] = signal.signal(s, self._handle)
         return self
 
     def __exit__(self, *exc):
-        import signal
-
         for s, handler in self._old.items():
             signal.signal(s, handler)
 
@@ -292,8 +286,6 @@ class StopOnSignal:
 def rerun_command() -> str:
     """How to start the Rerun viewer from this shell: `rerun` when it is on PATH, else the one installed
     beside this Python (after `make demo`, `.venv/bin/rerun`: the venv is not activated)."""
-    import shutil
-
     if shutil.which("rerun"):
         return "rerun"
     beside = Path(sys.executable).parent / "rerun"
