@@ -357,7 +357,8 @@ def test_thinned_copies_join_their_recording_and_leave_the_rest_unchanged():
 def test_thinned_copies_set_the_operating_point_not_the_weights():
     """`train(thin=...)`: the weights are fitted on the recordings as they are (the same as without
     thinned copies); the thresholds are calibrated on the thinned copies too, so a sparse scene's lower
-    signal scores pull them down; `fit_thinned=True` fits the weights on the copies as well."""
+    signal scores pull them down; `fit_thinned=True` fits the weights on the copies as well.
+    `time_scale` copies enter the fit."""
     from evstream import api
     from evstream.denoise.learned.train import train
 
@@ -369,6 +370,10 @@ def test_thinned_copies_set_the_operating_point_not_the_weights():
     assert thinned.threshold(0.85) < plain.threshold(0.85)
     assert not np.array_equal(both.w1, plain.w1)
     assert thinned.meta["thinned_copies"] == "operating point only" and "thinned_copies" not in plain.meta
+    slow = train(recs, per_stream=1000, time_scale=(2,))  # stretched copies: in the fit
+    assert not np.array_equal(slow.w1, plain.w1) and slow.meta["signal_time_scaled_by"] == [2.0]
+    with pytest.raises(ValueError, match="time scale"):
+        train(recs, per_stream=1000, time_scale=(0,))
 
 
 def test_stretched_and_off_thinned_copies_join_their_recording():

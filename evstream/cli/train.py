@@ -24,6 +24,18 @@ def _fractions(text: str) -> tuple[float, ...]:
     return fracs
 
 
+def _scales(text: str) -> tuple[float, ...]:
+    import argparse
+
+    try:
+        scales = tuple(float(f) for f in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected factors like 2,4, got {shown(text)}") from None
+    if not all(f > 0 for f in scales):
+        raise argparse.ArgumentTypeError(f"factors must be positive, got {shown(text)}")
+    return scales
+
+
 class Steps:
     """Training's progress on stderr, one step at a time: on a terminal one line rewritten in place; else
     (a pipe, a log, a CI job) a line per step with the seconds since the start, flushed as it comes,
@@ -77,7 +89,7 @@ def cmd_train(args) -> int:
         say(f"{len(recordings)} recording(s) read; features under {len(train.TRAIN_CONDITIONS)} noise conditions "
             f"each{' and thinned copy' if args.thin else ''}, then the fit")
     model = train.train(recordings, kind=args.kind, hidden=args.hidden, keep=args.keep, seed=args.seed,
-                        per_stream=args.events_per_stream, sources=sources, thin=args.thin,
+                        per_stream=args.events_per_stream, sources=sources, thin=args.thin, time_scale=args.time_scale,
                         without=args.without, progress=say)
     if say:
         say.done()
@@ -107,6 +119,9 @@ def add_parser(sub) -> None:
                    help="calibrate the operating point on each recording's signal thinned at random to "
                         "these fractions too (e.g. 0.3,0.1,0.03: sparser scenes; the weights are fitted on "
                         "the recordings as they are; docs/learned.md)")
+    p.add_argument("--time-scale", type=_scales, default=(), metavar="F,F...",
+                   help="also fit the weights on each recording with its timestamps stretched by these factors "
+                        "(e.g. 2: a scene twice as slow; docs/learned.md)")
     p.add_argument("--without", type=lambda t: [w for w in t.split(",") if w], default=[], metavar="F,F...",
                    help="features the score leaves out (docs/learned.md: the shipped model leaves out the DC ones)")
     p.add_argument("--min-duration-s", type=float, default=0.0, help="skip shorter recordings")

@@ -297,26 +297,33 @@ def sha256(path) -> str:
 def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: int = 16, keep: float = 0.85,
           seed: int = 0, per_stream: int = 20_000, sources: dict[str, str] | None = None,
           conditions: Iterable[Condition] = TRAIN_CONDITIONS, thin: Iterable[float] = (),
-          without: Iterable[str] = (), fit_thinned: bool = False,
+          without: Iterable[str] = (), fit_thinned: bool = False, time_scale: Iterable[float] = (),
           progress: Callable[[str], None] | None = None) -> Model:
     """Inject noise into `recordings` (and their signal thinned to `thin`, see `samples`), compute
     features, fit and calibrate; provenance in `meta`. `without`: features the score leaves out
-    (weight 0; the kernel still computes them, e.g. for the hot-pixel rules)."""
+    (weight 0; the kernel still computes them, e.g. for the hot-pixel rules). The thinned copies set
+    the operating point only (also the weights with `fit_thinned`); the `time_scale` copies (timestamps
+    stretched by each factor: slower scenes) the weights only."""
     conditions = list(conditions)
     thin = [float(f) for f in thin]
+    time_scale = [float(f) for f in time_scale]
+    if any(f <= 0 for f in time_scale):
+        raise ValueError(f"time scale factors must be positive, got {time_scale}")
     without = list(without)
     unknown = [f for f in without if f not in FEATURES]
     if unknown:
         raise ValueError(f"unknown feature(s) {', '.join(unknown)}; the features are {', '.join(FEATURES)}")
     S = samples(recordings, conditions, seeds=(SEED_BASE + seed,), per_stream=per_stream, rng_seed=seed,
-                progress=progress, thin=thin)
+                progress=progress, thin=thin, time_scale=time_scale)
     S.X[:, [FEATURES.index(f) for f in without]] = 0.0  # constant: standardised to 0, Newton keeps w = 0
     if progress:
         progress(f"fitting {kind} on {len(S.y):,} events")
-    # the thinned copies set the operating point; the weights are fitted on the recordings as they are
-    # (fitted on the thinned copies too, the score ranked worse on sensors it never saw: docs/learned.md)
-    model = fit(S, kind, hidden, keep, seed, fit_rows=None if fit_thinned or not thin else S.cond < len(conditions),
-                progress=progress)
+    # the thinned copies set the operating point, the stretched ones the weights (docs/learned.md: fitted
+    # on the thinned copies too, the score ranked worse on sensors it never saw; the stretched copies'
+    # scores kept the calibration from transferring)
+    n_plain, n_thinned = len(conditions), (1 + len(thin)) * len(conditions)  # condition indices, see samples
+    fit_rows = None if fit_thinned else (S.cond < n_plain) | (S.cond >= n_thinned)
+    model = fit(S, kind, hidden, keep, seed, fit_rows=fit_rows, calibrate_rows=S.cond < n_thinned, progress=progress)
     sources = sources or {}
     model.meta.update({
         "name": "trained",
@@ -326,6 +333,7 @@ def train(recordings: dict[str, EventChunk], *, kind: str = "logistic", hidden: 
         "noise_seed": SEED_BASE + seed,
         **({"signal_thinned_to": thin, "thinned_copies": "fit and operating point" if fit_thinned
             else "operating point only"} if thin else {}),
+        **({"signal_time_scaled_by": time_scale} if time_scale else {}),
         **({"features_left_out": without} if without else {}),
         "events_per_stream": per_stream,
         "training_events": int(len(S.y)),
