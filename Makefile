@@ -23,10 +23,13 @@ $(STAMP): $(PIP) evstream/_aot.json
 # numba. Rebuilt when any source file changed (an edit or a `git pull` sets the old module aside: numba
 # compiles instead, right but slower to start).
 # Not fatal: without a C compiler the kernels compile with numba at first use, as before.
+# After it (| .numba-cache), numba's cache is emptied when a source changed: the build runs the commands under
+# numba, whose cached kernels would otherwise miss an edit to a helper they inlined (after a `git pull` the
+# stale ones crashed the build with a segmentation fault).
 SOURCES := $(shell find evstream sources sinks -name '*.py' -not -path '*/__pycache__/*')
 BUILD_AOT = $(BIN)/python -m evstream.aot || echo "evstream.aot failed: numba will compile the kernels at first use"
 aot: evstream/_aot.json
-evstream/_aot.json: $(SOURCES) pyproject.toml | $(PIP)
+evstream/_aot.json: $(SOURCES) pyproject.toml | $(PIP) $(VENV)/.numba-cache
 	$(BUILD_AOT)
 
 demo: $(STAMP)
