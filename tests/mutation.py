@@ -105,6 +105,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (4, 5, 7, 13)],
     "STCF top-k: inserting a timestamp equal to the k-th newest, or shifting past equal ones, leaves the "
     "same k newest values": [f"evstream.denoise.stcf.x_stcf_scored_kernel__mutmut_{n}" for n in (16, 30)],
+    "STCF's unscored kernel: the same padded-map shifts and mirrors as the scored one's (x - r, r - x, "
+    "y - r, centre - o); counting on past k supporters (n > k to stop) before deciding n >= k": [
+        f"evstream.denoise.stcf.x_stcf_kernel__mutmut_{n}" for n in (4, 5, 7, 15, 24)],
     "Khodamoradi: visiting the column and row cells x+1-d / y+1-d for d in -1..1 visits the same three "
     "cells each, and d = 0 is still the event's own column / row": [
         f"evstream.denoise.khodamoradi.x_khodamoradi_kernel__mutmut_{n}" for n in (18, 45)],
@@ -112,6 +115,15 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "default: every value exact, compared equal to the event's) or one cell longer: the same decisions": [
         f"evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_allocate__mutmut_{n}"
         for n in (4, 7, 9, 11, 13, 15, 17, 19, 21, 25, 28, 30, 32, 34, 36, 38, 40, 42)],
+    "STCF's and BAF's maps: a wider padding (3r for 2r, or one more row / column: never read past r), "
+    "NEVER_US or the polarities without a dtype (int64; float64 compared equal to the event's), offsets "
+    "mirrored in x (dy·W - dx over a symmetric box is the same set)": [
+        *(f"evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁ_allocate__mutmut_{n}"
+          for n in (5, 9, 12, 16, 19, 21, 37)),
+        *(f"evstream.denoise.baf.xǁBackgroundActivityFilterǁ_allocate__mutmut_{n}" for n in (4, 7, 9, 11))],
+    "STCF's top-k scratch as float64: NEVER_US (-2^62) and every time below 2^53 us are exact, so the same "
+    "comparisons and the same score": [
+        f"evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁ__post_init____mutmut_{n}" for n in (72, 74)],
     "YNoise's maps: padded by 3r instead of 2r at the far side (never read: a neighbourhood reaches r), "
     "NEVER_US (the last times, the ring) without a dtype is int64, the last polarity as float64 "
     "(compared equal to the event's)": [
@@ -146,7 +158,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ__post_init____mutmut_42",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ__post_init____mutmut_15",
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ__post_init____mutmut_43",
-        "evstream.denoise.ynoise.xǁYNoiseFilterǁ__post_init____mutmut_90"],
+        "evstream.denoise.ynoise.xǁYNoiseFilterǁ__post_init____mutmut_90",
+        "evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁ__post_init____mutmut_69",
+        "evstream.denoise.baf.xǁBackgroundActivityFilterǁ__post_init____mutmut_16"],
     "to_events: astype(None) is float64, the dtype given; copy=True/None for copy=False changes no value; "
     "np.issubdtype(None, np.floating) holds, and an integer column always equals its floor": [
         f"evstream.sources._base.x_to_events__mutmut_{n}" for n in (20, 38, 40, 41, 58)],

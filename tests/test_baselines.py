@@ -197,6 +197,15 @@ def test_kernel_matches_brute_force_and_streams(name, data, seed, n):
         assert_causal(lambda: cls(**kw), s, seed)
 
 
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_both_calls_give_uint8_codes(name):
+    """The class-only call's codes are uint8 like the scored call's (a float64 0.0/1.0 compares equal)."""
+    s = random_stream(8, 200)
+    for codes in (CASES[name][1]().classify(s), CASES[name][1]().classify_scored(s)[0]):
+        assert codes.dtype == np.uint8 and len(codes) == len(s)
+
+
 _TIMES = ("tau_us", "window_us", "refractory_us", "hot_window_us")
 
 
@@ -290,6 +299,24 @@ def test_bad_parameters_are_refused_at_construction(spec):
       ({"hot_ratio": 0}, "hot_ratio must be in (0, 1], got 0"),
       ({"hot_ratio": 1.01}, "hot_ratio must be in (0, 1], got 1.01"),
       ({"hot_ratio": "0.5"}, "hot_ratio must be in (0, 1], got '0.5'")]),
+    (SpatioTemporalCorrelationFilter,
+     [{"tau_us": 1, "radius_px": 8, "k": 288}, {"radius_px": 1, "k": 8, "polarity_match": np.bool_(True)},
+      {"tau_us": np.int64(7), "k": np.int64(1), "radius_px": np.int64(2)}],
+     [({"tau_us": 0}, "tau_us must be a positive integer, got 0"),
+      ({"tau_us": 2.0}, "tau_us must be a positive integer, got 2.0"),
+      ({"radius_px": 0}, "radius_px must be an integer in 1..8, got 0"),
+      ({"radius_px": 9}, "radius_px must be an integer in 1..8, got 9"),
+      ({"radius_px": 1.0}, "radius_px must be an integer in 1..8, got 1.0"),
+      ({"k": 0}, "k must be an integer in 1..8 (neighbours of radius 1), got 0"),
+      ({"k": 9}, "k must be an integer in 1..8 (neighbours of radius 1), got 9"),
+      ({"radius_px": 8, "k": 289}, "k must be an integer in 1..288 (neighbours of radius 8), got 289"),
+      ({"k": 2.0}, "k must be an integer in 1..8 (neighbours of radius 1), got 2.0"),
+      ({"polarity_match": 0}, "polarity_match must be a bool")]),
+    (BackgroundActivityFilter, [{"tau_us": 1}, {"tau_us": np.int64(2**40)}],
+     [({"tau_us": 0}, "tau_us must be a positive integer, got 0"),
+      ({"tau_us": -3}, "tau_us must be a positive integer, got -3"),
+      ({"tau_us": 1.5}, "tau_us must be a positive integer, got 1.5"),
+      ({"tau_us": False}, "tau_us must be a positive integer, got False")]),
 ])
 def test_each_parameter_is_taken_to_its_limits_and_refused_past_them(cls, ok, bad):
     """Every limit accepted, and one past it refused with its own message naming the stage; accepted
@@ -300,7 +327,8 @@ def test_each_parameter_is_taken_to_its_limits_and_refused_past_them(cls, ok, ba
         for k, v in kw.items():
             want = float if k == "hot_ratio" else plain.get(type(v), type(v))
             assert getattr(stage, k) == v and type(getattr(stage, k)) is want
-    kind = "khodamoradi" if cls is KhodamoradiFilter else "ynoise"
+    kind = {KhodamoradiFilter: "khodamoradi", YNoiseFilter: "ynoise", SpatioTemporalCorrelationFilter: "stcf",
+            BackgroundActivityFilter: "baf"}[cls]
     for kw, why in bad:
         with pytest.raises(ValueError, match=f"^{re.escape(f'{kind}: {why}')}$"):
             cls(**kw)
