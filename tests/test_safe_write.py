@@ -156,21 +156,25 @@ def test_an_input_that_shrinks_while_read_is_an_error(tmp_path):
 
 
 # -- a full disk ---------------------------------------------------------------------------------------
-@pytest.fixture
-def full_disk(tmp_path):
-    """A 2 MiB tmpfs, nearly filled (CI runs as root; skipped where mounting is not allowed)."""
-    where = tmp_path / "small"
+def tmpfs(where: Path, options: str):
+    """A tmpfs mounted at `where` with `options` while the test runs (CI runs as root; skipped where
+    mounting is not allowed)."""
     where.mkdir()
     if shutil.which("mount") is None:
         pytest.skip("no mount command")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(where)], capture_output=True,
-                       text=True)
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)], capture_output=True, text=True)
     if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs here (needs root): {r.stderr.strip()}")
+        pytest.skip(f"cannot mount a tmpfs ({options}) here (needs root): {r.stderr.strip()}")
     try:
         yield where
     finally:
         subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A 2 MiB tmpfs (the tests fill it nearly)."""
+    yield from tmpfs(tmp_path / "small", "size=2m")
 
 
 COMMANDS = {  # command line, target name
@@ -204,19 +208,8 @@ def test_a_full_disk_is_one_line_naming_the_file_and_nothing_is_left_under_its_n
 
 @pytest.fixture
 def read_only(tmp_path):
-    """A read-only tmpfs (root writes into a chmod-ed folder anyway; skipped where mounting is not allowed)."""
-    where = tmp_path / "ro"
-    where.mkdir()
-    if shutil.which("mount") is None:
-        pytest.skip("no mount command")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(where)], capture_output=True,
-                       text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a read-only tmpfs here (needs root): {r.stderr.strip()}")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+    """A read-only tmpfs (root writes into a chmod-ed folder anyway)."""
+    yield from tmpfs(tmp_path / "ro", "ro,size=1m")
 
 
 READ_ONLY = {  # command line (the target last but for flags), target name
