@@ -8,7 +8,8 @@
   input, not the partial output of an earlier run — and is renamed onto the target only when whole.
 - A failed run leaves the target as it was. Its partial output is removed, or kept when the writer
   asks (an MCAP archive closed after an error is readable up to it); the error then says where.
-- A full disk is one error naming the target: "no space left on the device".
+- A full disk is one error naming the target: "no space left on the device"; a folder that cannot be
+  written (read-only, no permission) too: "TARGET: cannot write there: REASON" (`cannot_write`).
 
 A killed process leaves its temporary where it was (`TARGET.part`): what it wrote so far, the target
 untouched. A run cut short on purpose (Ctrl-C in a file command) closes its output properly and sets it
