@@ -456,3 +456,19 @@ def test_an_unwritten_settings_record_says_what_a_rerun_does(tmp_path):
     assert warning.startswith(f"{out}: no record of its settings written (")
     assert warning.endswith("a re-run leaves it as it is, --force makes it again")
     assert batch.redo_reason(batch.Task(str(source), str(out)), settings) == (False, batch.UNRECORDED, {})
+
+
+def test_a_bad_pipeline_or_model_file_is_one_error_before_the_cluster_starts(dataset, tmp_path, capsys):
+    """`archive DATA/ OUT/ --pipeline missing.toml` started the cluster, then failed every recording with the
+    same line, one per row of the table. The file is read once first: one error, exit 1, nothing written."""
+    (tmp_path / "bad.toml").write_text("kind = [\n")
+    (tmp_path / "model.npz").write_bytes((ROOT / "recordings" / "bar.npz").read_bytes())
+    cases = {("--pipeline", tmp_path / "missing.toml"): "missing.toml: no such pipeline file",
+             ("--pipeline", tmp_path / "bad.toml"): "bad.toml: not valid TOML",
+             ("--denoise", "learned", "--model", tmp_path / "model.npz"): "model.npz: not an evstream model file"}
+    for flags, said in cases.items():
+        rc = main(["archive", str(dataset), str(tmp_path / "out"), *map(str, flags), "--jobs", "1", "--quiet"])
+        out, err = capsys.readouterr()
+        assert rc == 1 and out == "" and len(err.splitlines()) == 1, err
+        assert err.startswith(f"evstream: error: {tmp_path / said.split(':')[0]}:") and said in err, err
+        assert not (tmp_path / "out").exists()

@@ -71,6 +71,7 @@ def run_batch(args, work: Callable, suffix: str) -> int:
         tasks = batch.plan(args.source, args.out, suffix)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    _read_once(args)
     params = flags_of(args)
     params["command_line"] = sys.argv[1:] or None
     progress = Progress(quiet=args.quiet, desc=f"{args.command} ", unit="recordings", delay_s=0.5)
@@ -93,6 +94,19 @@ def run_batch(args, work: Callable, suffix: str) -> int:
     else:
         print(table(results))
     return interrupted(signum, results) or (1 if failed else 0)
+
+
+def _read_once(args) -> None:
+    """A --pipeline or --model file every task reads, read here first: one that cannot be (missing, not
+    TOML, not a model) is one error before the cluster starts, not the same line on every recording's row."""
+    if getattr(args, "pipeline", None):
+        from ..pipeline import Pipeline
+
+        Pipeline.from_toml(args.pipeline)
+    if getattr(args, "model", None) and getattr(args, "denoise", None) == "learned":
+        from ..denoise.learned.model import load
+
+        load(args.model)
 
 
 def run_tasks(args, tasks: list[batch.Task], work: Callable, params: dict, on_result, warm, progress):
