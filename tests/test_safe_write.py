@@ -436,3 +436,15 @@ def test_atomic_folder_replaces_stale_frames_only_where_it_wrote(tmp_path):
         raise RuntimeError("failed")
     assert (out / "frame_000000.png").read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == [
         "frames"]
+
+
+def test_subscribe_archive_in_a_read_only_folder_fails_at_start(read_only, capsys):
+    """`subscribe --archive RO/OUT_{camera}.mcap` subscribed, then failed when the first camera arrived (its
+    publisher's stream lost). The folder is tried at start, before any session opens."""
+    port = __import__("test_zenoh_live").free_port()  # nothing listens there: the check comes first
+    template = read_only / "OUT_{camera}.mcap"
+    rc, _, err = run(["subscribe", "evstream/*/events", "--connect", f"tcp/127.0.0.1:{port}", "--archive", template],
+                     capsys)
+    assert rc == 1
+    assert one_line_error(err) == (f"evstream: error: --archive {template}: cannot write in {read_only}: "
+                                   "Read-only file system")

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,6 +41,10 @@ def cmd_subscribe(args) -> int:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise OSError(f"--archive {args.archive}: cannot create {folder}: {e.strerror or e}") from None
+        try:  # and writable: a read-only folder was found at the first camera, its stream lost
+            tempfile.TemporaryFile(dir=folder).close()
+        except OSError as e:
+            raise OSError(f"--archive {args.archive}: cannot write in {folder}: {e.strerror or e}") from None
     if args.republish and any(c in args.republish.replace("{camera}", "") for c in "*$?#"):
         raise UsageError(f"--republish {args.republish}: a concrete key (with {{camera}}), no wildcards")
     for name in ("depth", "max_packet_bytes"):
