@@ -105,6 +105,11 @@ class DatSource(FileSource):
 def save(path, events) -> None:
     """Write events as a version 2 DAT file (times below 2^32 µs; x, y below 16384), its sensor size in
     `% Width`/`% Height` lines: for tests and tools (evstream.aot)."""
+    bad = np.flatnonzero((events.x >= 1 << 14) | (events.y >= 1 << 14) | (events.t < 0) | (events.t >= 1 << 32))
+    if len(bad):  # the columns would wrap silently: a file of other events
+        i = int(bad[0])
+        raise ValueError(f"{path}: event {i} (t={events.t[i]} µs, x={events.x[i]}, y={events.y[i]}) does not fit "
+                         "a DAT file (x, y below 16384; t from 0 to below 2^32 µs)")
     rec = np.empty((len(events), 2), "<u4")
     rec[:, 0] = events.t & 0xFFFFFFFF
     rec[:, 1] = events.x.astype(np.uint32) | (events.y.astype(np.uint32) << 14) | (events.p.astype(np.uint32) << 28)

@@ -104,6 +104,25 @@ def test_nmnist_round_trip_and_fitted_geometry(tmp_path):
     same(concat(list(src)), s)
 
 
+@pytest.mark.parametrize("fmt, g, field, value", [
+    ("nmnist", Geometry(300, 34), "x", 299), ("nmnist", Geometry(34, 34), "t", 1 << 23),
+    ("dat", Geometry(20000, 240), "x", 16384), ("dat", Geometry(304, 240), "t", 1 << 32)])
+def test_dat_and_nmnist_save_refuse_events_their_columns_cannot_hold(tmp_path, fmt, g, field, value):
+    """`sources.nmnist.save` / `sources.dat.save` (the ahead-of-time build's recordings) wrote x = 299 into a
+    uint8 column as 43, t = 2^23 as 0: a file of other events, without a word. Now a ValueError naming the
+    event; what fits reads back as it was."""
+    from evstream.sources import dat, nmnist
+
+    module, ext = {"nmnist": (nmnist, ".bin"), "dat": (dat, ".dat")}[fmt]
+    s = stream(200, g=Geometry(34, 34) if fmt == "nmnist" else Geometry(304, 240))
+    module.save(tmp_path / f"ok{ext}", s)
+    same(concat(list(open_source(tmp_path / f"ok{ext}"))), s)
+    column = getattr(s, field).copy()
+    column[150:] = np.maximum(column[150:], value) if field == "t" else value
+    with pytest.raises(ValueError, match=rf"bad\{ext}: event 150 \(t=.*\) does not fit"):
+        module.save(tmp_path / f"bad{ext}", s.replace(geometry=g, **{field: column}))
+
+
 def test_aedat2_round_trip_with_jaer_address_convention(tmp_path):
     s = stream(3000, t0=(1 << 32) - 50_000)
     aedat2.save(tmp_path / "a.aedat", s.t, s.x, s.y, s.p)
