@@ -124,6 +124,11 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "STCF's top-k scratch as float64: NEVER_US (-2^62) and every time below 2^53 us are exact, so the same "
     "comparisons and the same score": [
         f"evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁ__post_init____mutmut_{n}" for n in (72, 74)],
+    "DWF: the rings as float64 (every position exact) or with a third, unused row (and fill/head of 3); "
+    "counting on past k (n > k to stop early) before deciding n >= k": [
+        *(f"evstream.denoise.dwf.xǁDoubleWindowFilterǁ__post_init____mutmut_{n}"
+          for n in (51, 53, 54, 57, 59, 60, 66, 72)),
+        *(f"evstream.denoise.dwf.x_dwf_kernel__mutmut_{n}" for n in (23, 27))],
     "YNoise's maps: padded by 3r instead of 2r at the far side (never read: a neighbourhood reaches r), "
     "NEVER_US (the last times, the ring) without a dtype is int64, the last polarity as float64 "
     "(compared equal to the event's)": [
@@ -133,6 +138,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁclassify__mutmut_2",
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁclassify__mutmut_5",
         "evstream.denoise.ynoise.xǁYNoiseFilterǁ_run__mutmut_9",
+        "evstream.denoise.dwf.xǁDoubleWindowFilterǁ_run__mutmut_9",
+        "evstream.denoise.dwf.xǁDoubleWindowFilterǁclassify__mutmut_2",
+        "evstream.denoise.dwf.xǁDoubleWindowFilterǁclassify__mutmut_5",
         "evstream.denoise.ynoise.xǁYNoiseFilterǁclassify__mutmut_2",
         "evstream.denoise.ynoise.xǁYNoiseFilterǁclassify__mutmut_5",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁclassify__mutmut_2",
@@ -145,6 +153,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_11",
         "evstream.denoise.khodamoradi.xǁKhodamoradiFilterǁ_run__mutmut_13",
         "evstream.denoise.ynoise.xǁYNoiseFilterǁ_run__mutmut_11",
+        "evstream.denoise.dwf.xǁDoubleWindowFilterǁ_run__mutmut_11",
+        "evstream.denoise.dwf.xǁDoubleWindowFilterǁ_run__mutmut_13",
         "evstream.denoise.ynoise.xǁYNoiseFilterǁ_run__mutmut_13",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_11",
         "evstream.denoise.hotpixel.xǁHotPixelLearnerǁ_run__mutmut_13",

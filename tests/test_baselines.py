@@ -317,6 +317,16 @@ def test_bad_parameters_are_refused_at_construction(spec):
       ({"tau_us": -3}, "tau_us must be a positive integer, got -3"),
       ({"tau_us": 1.5}, "tau_us must be a positive integer, got 1.5"),
       ({"tau_us": False}, "tau_us must be a positive integer, got False")]),
+    (DoubleWindowFilter, [{"window_events": 1, "radius_px": 0, "k": 2}, {"window_events": 1_000_000, "k": 2_000_000},
+                          {"window_events": np.int64(3), "radius_px": np.int64(4), "k": np.int64(1)}],
+     [({"window_events": 0}, "window_events must be an integer in 1..1000000, got 0"),
+      ({"window_events": 1_000_001}, "window_events must be an integer in 1..1000000, got 1000001"),
+      ({"window_events": 4.0}, "window_events must be an integer in 1..1000000, got 4.0"),
+      ({"radius_px": -1}, "radius_px must be a non-negative integer, got -1"),
+      ({"radius_px": 1.0}, "radius_px must be a non-negative integer, got 1.0"),
+      ({"k": 0}, "k must be an integer in 1..2*window_events, got 0"),
+      ({"window_events": 3, "k": 7}, "k must be an integer in 1..2*window_events, got 7"),
+      ({"k": True}, "k must be an integer in 1..2*window_events, got True")]),
 ])
 def test_each_parameter_is_taken_to_its_limits_and_refused_past_them(cls, ok, bad):
     """Every limit accepted, and one past it refused with its own message naming the stage; accepted
@@ -328,7 +338,7 @@ def test_each_parameter_is_taken_to_its_limits_and_refused_past_them(cls, ok, ba
             want = float if k == "hot_ratio" else plain.get(type(v), type(v))
             assert getattr(stage, k) == v and type(getattr(stage, k)) is want
     kind = {KhodamoradiFilter: "khodamoradi", YNoiseFilter: "ynoise", SpatioTemporalCorrelationFilter: "stcf",
-            BackgroundActivityFilter: "baf"}[cls]
+            BackgroundActivityFilter: "baf", DoubleWindowFilter: "dwf"}[cls]
     for kw, why in bad:
         with pytest.raises(ValueError, match=f"^{re.escape(f'{kind}: {why}')}$"):
             cls(**kw)
