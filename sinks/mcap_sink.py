@@ -40,6 +40,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import datetime
+import importlib.metadata
 import json
 import re
 import struct
@@ -72,6 +73,7 @@ CLASS_NAMES = {NoiseClass.SIGNAL: "signal", NoiseClass.BACKGROUND: "background",
                NoiseClass.HOT_PIXEL: "hot_pixel"}
 _CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _NEVER = 1 << 62  # mcap's own chunk_size: we close chunks ourselves
+BULK_MCAP_VERSIONS = ("1.6.",)  # mcap releases whose Writer internals McapSink._add_packets knows
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # an MCAP Message record up to its data: opcode, length, channel, seq, times
 
 
@@ -240,7 +242,10 @@ class McapSink:
     `metadata`: provenance written at the start (values JSON-encoded when not strings).
     """
 
-    _ONE_BY_ONE = False  # packets through mcap's `Writer.add_message` one at a time (what the tests compare with)
+    # `_add_packets` writes into mcap's Writer internals; only the versions whose files it was checked to
+    # match byte for byte (tests/test_mcap_archive.py) take that path, any other adds packets through
+    # `Writer.add_message` one at a time (what the tests compare with).
+    _ONE_BY_ONE = not importlib.metadata.version("mcap").startswith(BULK_MCAP_VERSIONS)
 
     def __init__(self, path, *, camera: str = "camera", encoding: str = "evt3", keep_noise: bool = False,
                  frames: bool = True, frame_format: str = "foxglove", points: bool = False,
