@@ -148,7 +148,7 @@ def test_serve_listens_on_loopback_only_and_accepts_a_local_connection(tmp_path,
     proc = subprocess.Popen(
         [sys.executable, "-m", "evstream.cli", "replay", str(TURNTABLE), "--serve", "--json", "--denoise", "truth",
          "--memory-limit", "256MiB"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, start_new_session=True,
     )
     try:
         summary = read_json_line(proc, 60)
@@ -169,7 +169,12 @@ def test_serve_listens_on_loopback_only_and_accepts_a_local_connection(tmp_path,
         assert proc.poll() is None, "the server stopped before Ctrl-C"
     finally:
         proc.send_signal(stop)
-        code = proc.wait(timeout=20)
+        try:
+            code = proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:  # fail, but leave no server (nor its viewer) listening behind
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            raise
     assert code == (-signal.SIGKILL if stop == signal.SIGKILL else 0)
     deadline = time.monotonic() + 10  # the server goes with the replay, even when that is killed
     while is_listening("127.0.0.1", grpc_port) and time.monotonic() < deadline:

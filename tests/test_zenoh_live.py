@@ -491,7 +491,12 @@ def test_subscribe_logs_into_a_running_viewer(procs, tmp_path):
         out = procs.result(sub)
     finally:
         viewer.send_signal(signal.SIGINT)  # the receiver finishes its file
-        viewer.wait(timeout=20)
+        try:
+            viewer.wait(timeout=20)
+        except subprocess.TimeoutExpired:  # fail, but leave no viewer listening behind
+            viewer.kill()
+            viewer.wait()
+            raise
     assert out["output"] == "connect" and out["cameras"]["cam1"]["events"] == 174_999
     points = 0
     for chunk in RrdReader(received).stream():
