@@ -12,28 +12,25 @@ from .common import UsageError, not_the_input
 from .evaluate import read_recordings
 
 
-def _fractions(text: str) -> tuple[float, ...]:
+def _numbers(what: str, example: str, rule: str, ok):
+    """The argparse type of a list of numbers `F,F...` (`--thin` fractions, `--time-scale` factors): each must
+    pass `ok`, else one line saying what was expected."""
     import argparse
 
-    try:
-        fracs = tuple(float(f) for f in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected fractions like 0.3,0.1, got {shown(text)}") from None
-    if not all(0 < f < 1 for f in fracs):
-        raise argparse.ArgumentTypeError(f"fractions must be in (0, 1), got {shown(text)}")
-    return fracs
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(f) for f in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what} like {example}, got {shown(text)}") from None
+        if not all(ok(f) for f in values):
+            raise argparse.ArgumentTypeError(f"{what} must be {rule}, got {shown(text)}")
+        return values
+
+    return parse
 
 
-def _scales(text: str) -> tuple[float, ...]:
-    import argparse
-
-    try:
-        scales = tuple(float(f) for f in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected factors like 2,4, got {shown(text)}") from None
-    if not all(f > 0 for f in scales):
-        raise argparse.ArgumentTypeError(f"factors must be positive, got {shown(text)}")
-    return scales
+_fractions = _numbers("fractions", "0.3,0.1", "in (0, 1)", lambda f: 0 < f < 1)
+_scales = _numbers("factors", "2,4", "positive", lambda f: f > 0)
 
 
 class Steps:
@@ -41,15 +38,15 @@ class Steps:
     (a pipe, a log, a CI job) a line per step with the seconds since the start, flushed as it comes,
     so that a minute of feature computation does not look like a hung command."""
 
-    def __init__(self, t0: float):
-        self.t0 = t0
+    def __init__(self, start_s: float):
+        self.start_s = start_s  # time.perf_counter() when training began
         self.tty = sys.stderr.isatty()
 
     def __call__(self, message: str) -> None:
         if self.tty:
             print(f"\r{message}\x1b[K", end="", file=sys.stderr, flush=True)
         else:
-            print(f"evstream train: {time.perf_counter() - self.t0:.0f} s: {message}", file=sys.stderr, flush=True)
+            print(f"evstream train: {time.perf_counter() - self.start_s:.0f} s: {message}", file=sys.stderr, flush=True)
 
     def done(self) -> None:
         if self.tty:
