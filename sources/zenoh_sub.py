@@ -138,11 +138,12 @@ class End:
     key: str
 
 
-def _joins(batch: list[LivePacket], item: LivePacket, max_events: int) -> bool:
-    """Whether `item` continues `batch`'s stream: same camera and sensor, no restart, within `max_events`."""
+def _joins(batch: list[LivePacket], batch_events: int, item: LivePacket, max_events: int) -> bool:
+    """Whether `item` continues `batch`'s stream (`batch_events` events so far): same camera and sensor, no
+    restart, within `max_events`."""
     first = batch[0]
     return (item.camera == first.camera and not item.restart and item.chunk.geometry == first.chunk.geometry
-            and sum(len(p.chunk) for p in batch) + len(item.chunk) <= max_events)
+            and batch_events + len(item.chunk) <= max_events)
 
 
 def _joined(batch: list[LivePacket]) -> LivePacket:
@@ -210,12 +211,13 @@ class ZenohSubscription:
         last = time.monotonic()
         poll_s = 0.0002
         batch: list[LivePacket] = []
+        batch_events = 0
         while not self._stopped.is_set() and not self.should_stop():
             sample = self._sub.try_recv()
             if sample is None:
                 if batch:  # nothing more waiting: hand on what was taken
                     yield _joined(batch)
-                    batch = []
+                    batch, batch_events = [], 0
                     continue
                 if self.idle_s is not None and time.monotonic() - last > self.idle_s:
                     return
@@ -227,11 +229,12 @@ class ZenohSubscription:
             item = self.handle(sample)
             if item is None:
                 continue
-            if batch and not (isinstance(item, LivePacket) and _joins(batch, item, max_events)):
+            if batch and not (isinstance(item, LivePacket) and _joins(batch, batch_events, item, max_events)):
                 yield _joined(batch)
-                batch = []
+                batch, batch_events = [], 0
             if isinstance(item, LivePacket) and len(item.chunk) < max_events:
                 batch.append(item)
+                batch_events += len(item.chunk)
             else:
                 yield item
         if batch:
