@@ -46,7 +46,8 @@ COMMANDS = (
     ["archive", "{npz}", "{out}/k.mcap", "--denoise", "learned", "-q"],
     ["convert", "{npz}", "{out}/l.raw", "--evt", "2", "-q"],
 )
-RECORDINGS = ("npz", "raw", "small", "vga_evt2", "dat", "nmnist")  # what COMMANDS' fields name (`recordings`)
+# What COMMANDS' fields name, and each one's file suffix (`recordings`).
+RECORDINGS = {"npz": ".npz", "raw": ".raw", "small": ".npz", "vga_evt2": ".raw", "dat": ".dat", "nmnist": ".bin"}
 OPTIONS = {"cache", "nogil", "inline", "fastmath"}  # kernels compiled with other numba options stay with the JIT
 
 
@@ -65,6 +66,11 @@ def arg_key(ty):
     return None
 
 
+def recording_paths(folder: Path) -> dict[str, Path]:
+    """Where `recordings` puts each of COMMANDS' recordings in `folder`."""
+    return {name: folder / f"rec-{name}{suffix}" for name, suffix in RECORDINGS.items()}
+
+
 def recordings(folder: Path) -> dict[str, Path]:
     """Small synthetic recordings in `folder`, one per field of COMMANDS: the turntable (346x260) as .npz and
     EVT3 .raw, its first 2,000 events as a stored (not deflated) .npz, as a 640x480 EVT2 .raw, a DAT file
@@ -78,9 +84,7 @@ def recordings(folder: Path) -> dict[str, Path]:
 
     from .sources import dat, native, nmnist, prophesee_raw
 
-    paths = {name: folder / f"rec-{name}{ext}" for name, ext in
-             (("npz", ".npz"), ("raw", ".raw"), ("small", ".npz"), ("vga_evt2", ".raw"), ("dat", ".dat"),
-              ("nmnist", ".bin"))}
+    paths = recording_paths(folder)
     davis = scene(346, 260)
     native.save(paths["npz"], davis)
     native.save(paths["small"], davis[:2000], compress=False)  # stored: its columns are views of the bytes read
@@ -98,7 +102,7 @@ def record(folder: Path) -> list[jit.Kernel]:
     script = "import sys\nfrom pathlib import Path\nfrom evstream.aot import recordings\nrecordings(Path(sys.argv[1]))"
     # in a process of its own: the kernels that make them (synth, noise) are not the commands'
     subprocess.run([sys.executable, "-c", script, str(folder)], check=True, env=dict(os.environ, EVSTREAM_AOT="0"))
-    paths = {name: next(folder.glob(f"rec-{name}.*")) for name in RECORDINGS}
+    paths = recording_paths(folder)
     for argv in COMMANDS:
         with contextlib.redirect_stdout(io.StringIO()):
             code = main([a.format(out=folder, **paths) for a in argv])
