@@ -318,6 +318,17 @@ class FileSource:
             )
 
 
+def check_fits(path, events: EventChunk, side: int, t_bits: int, what: str) -> None:
+    """For a writer of fixed-width columns (`dat.save`, `nmnist.save`): a ValueError naming the first event
+    whose x or y is not below `side` or whose t is not in 0 .. 2^t_bits - 1 µs; written, its columns would
+    wrap silently into a file of other events."""
+    bad = np.flatnonzero((events.x >= side) | (events.y >= side) | (events.t < 0) | (events.t >= 1 << t_bits))
+    if len(bad):
+        i = int(bad[0])
+        raise ValueError(f"{path}: event {i} (t={events.t[i]} µs, x={events.x[i]}, y={events.y[i]}) does not fit "
+                         f"{what} (x, y below {side}; t from 0 to below 2^{t_bits} µs)")
+
+
 def check_not_shrunk(path: str, size_at_open: int) -> None:
     """An input cut shorter while it was read (`truncate` during a paced replay) ends the stream early
     without a sign in the data: an EventError says so, so the run does not end as if whole."""

@@ -15,7 +15,7 @@ import numpy as np
 
 from evstream.events import Geometry
 
-from ._base import Block, FileSource, Unwrapper, as_geometry, fit_geometry, iter_records, read_header_lines
+from ._base import Block, FileSource, Unwrapper, as_geometry, check_fits, fit_geometry, iter_records, read_header_lines
 
 NAME = "Prophesee DAT (Event2d)"
 FORMAT = "dat"
@@ -105,11 +105,7 @@ class DatSource(FileSource):
 def save(path, events) -> None:
     """Write events as a version 2 DAT file (times below 2^32 µs; x, y below 16384), its sensor size in
     `% Width`/`% Height` lines: for tests and tools (evstream.aot)."""
-    bad = np.flatnonzero((events.x >= 1 << 14) | (events.y >= 1 << 14) | (events.t < 0) | (events.t >= 1 << 32))
-    if len(bad):  # the columns would wrap silently: a file of other events
-        i = int(bad[0])
-        raise ValueError(f"{path}: event {i} (t={events.t[i]} µs, x={events.x[i]}, y={events.y[i]}) does not fit "
-                         "a DAT file (x, y below 16384; t from 0 to below 2^32 µs)")
+    check_fits(path, events, 1 << 14, 32, "a DAT file")
     rec = np.empty((len(events), 2), "<u4")
     rec[:, 0] = events.t & 0xFFFFFFFF
     rec[:, 1] = events.x.astype(np.uint32) | (events.y.astype(np.uint32) << 14) | (events.p.astype(np.uint32) << 28)

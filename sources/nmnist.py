@@ -16,7 +16,7 @@ import numpy as np
 
 from evstream.events import Geometry
 
-from ._base import Block, FileSource, Unwrapper, fit_geometry, iter_records
+from ._base import Block, FileSource, Unwrapper, check_fits, fit_geometry, iter_records
 
 NAME = "N-MNIST binary (40-bit events)"
 FORMAT = "nmnist"
@@ -74,11 +74,7 @@ class NmnistSource(FileSource):
 def save(path, events) -> None:
     """Write events as an N-MNIST binary (x, y below 256; times below 2^23 µs): for tests and tools
     (evstream.aot)."""
-    bad = np.flatnonzero((events.x > 255) | (events.y > 255) | (events.t < 0) | (events.t >= 1 << 23))
-    if len(bad):  # the columns would wrap silently: a file of other events
-        i = int(bad[0])
-        raise ValueError(f"{path}: event {i} (t={events.t[i]} µs, x={events.x[i]}, y={events.y[i]}) does not fit "
-                         "an N-MNIST binary (x, y below 256; t from 0 to below 2^23 µs)")
+    check_fits(path, events, 256, 23, "an N-MNIST binary")
     r = np.zeros((len(events), 5), np.uint8)
     t = events.t.astype(np.uint32)
     r[:, 0], r[:, 1] = events.x, events.y
