@@ -134,6 +134,26 @@ def test_matches_the_definition(kind, window, all_events):
         np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
 
 
+@pytest.mark.parametrize("window", sorted(WINDOWS))
+def test_voxel_grids_are_whole_though_not_zero_filled(window, monkeypatch):
+    """A voxel grid is zeroed bin by bin as its events reach them, and the rest when its window closes:
+    every array starts as NaN here, so a bin left unwritten or added to before it was zeroed would show."""
+    import evstream.framing.represent as represent
+
+    start = represent._Grid.__init__
+
+    def poisoned(grid, data, ready):
+        data.reshape(-1)[ready:] = np.nan
+        start(grid, data, ready)
+
+    monkeypatch.setattr(represent._Grid, "__init__", poisoned)
+    stream = labelled(4, 1500)
+    frames = frames_of(make("voxel", window)(), [stream])
+    assert len(frames) > 5
+    for fr, ref in zip(frames, reference("voxel", stream, frames, window)):
+        np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
 def test_voxel_of_a_fixed_count_window_spans_first_to_last_event():
     """fn windows: t_start and t_end − 1 are the first and last events, as in tonic and Zhu et al."""
     g = Geometry(4, 1)
@@ -200,6 +220,20 @@ def timestamp_plain(t, flat, t_start, t_end, hw):
     return ref
 
 
+def lazily(run, size):
+    """The grid a voxel kernel `run(out, ready) -> ready` makes from a grid of NaN of which nothing is
+    written (ready 0), the rest zeroed after it as a window's array is: checked to be, bit for bit, the grid
+    it makes from a zero-filled one (ready = size). A bin used before it was zeroed would hold NaN."""
+    lazy = np.full(size, np.nan, np.float32)
+    ready = run(lazy, 0)
+    assert 0 <= ready <= size
+    lazy[ready:] = 0
+    zeroed = np.zeros(size, np.float32)
+    assert run(zeroed, size) == size
+    assert lazy.view(np.uint32).tolist() == zeroed.view(np.uint32).tolist()
+    return lazy
+
+
 def random_events(rng, n, width, height, t0=100):
     """n time-ordered events on a width x height sensor (some pixels hit often), with classes."""
     t = np.sort(rng.integers(t0, t0 + max(1, n) * 3, n)).astype(np.int64)
@@ -216,8 +250,7 @@ def test_buffer_kernels_match_plain_python(seed, n, bins):
     f = rng.integers(0, 2 * hw, n).astype(np.uint32)
     t_start, t_end = 100, 100 + max(1, n) * 3 + int(rng.integers(0, 5))
 
-    vox = np.zeros(bins * hw, np.float32)
-    voxel_kernel(t, f, t_start, t_end, bins, hw, vox)
+    vox = lazily(lambda out, ready: voxel_kernel(t, f, t_start, t_end, bins, hw, out, ready), bins * hw)
     np.testing.assert_allclose(vox, voxel_plain(t, f % hw, f >= hw, t_start, t_end, bins, hw), atol=1e-5)
 
     ts = np.zeros(2 * hw, np.float32)
@@ -236,8 +269,8 @@ def test_chunk_kernels_match_plain_python(seed, n, bins, use_cls):
     keep = cls == 0 if use_cls else np.ones(n, bool)
     pix = y.astype(np.int64) * width + x
 
-    vox = np.zeros(bins * hw, np.float32)
-    voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, bins, width, hw, vox)
+    vox = lazily(lambda out, ready: voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, bins, width, hw, out,
+                                                   ready), bins * hw)
     ref = voxel_plain(t[keep], pix[keep], p[keep] == 1, t_start, t_end, bins, hw)
     np.testing.assert_allclose(vox, ref, atol=1e-5)
 
@@ -279,36 +312,49 @@ def test_voxel_table_kernels_are_the_arithmetic_kernels_to_the_bit(seed, n, bins
     keep = cls == 0 if use_cls else np.ones(n, bool)
     pix = y.astype(np.int64) * width + x
     flat = (p.astype(np.int64) * hw + pix).astype(np.uint32)
-    arith, table = np.zeros(bins * hw, np.float32), np.zeros(bins * hw, np.float32)
-    voxel_kernel(t[keep], flat[keep], t_start, t_start + span, bins, hw, arith)
-    voxel_table_kernel(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, table)
+    size = bins * hw
+    arith = lazily(lambda out, ready: voxel_kernel(t[keep], flat[keep], t_start, t_start + span, bins, hw, out, ready),
+                   size)
+    table = lazily(lambda out, ready: voxel_table_kernel(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, out,
+                                                         ready), size)
     assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
     np.testing.assert_allclose(table, voxel_plain(t[keep], pix[keep], p[keep] == 1, t_start, t_start + span, bins,
                                                   hw), atol=1e-5)
-    arith[:], table[:] = 0, 0
-    voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_start + span, bins, width, hw, arith)
-    voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_lo, w_hi, table)
+    arith = lazily(lambda out, ready: voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_start + span, bins, width,
+                                                     hw, out, ready), size)
+    table = lazily(lambda out, ready: voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_lo,
+                                                           w_hi, out, ready), size)
     assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
 
     # counting and adding in one pass: the counts of `accumulate` / `add_flat` (saturating), the same grid
     a = int(rng.integers(0, n + 1))
     start_counts = rng.choice([0, COUNT_MAX - 1, COUNT_MAX], 2 * hw).astype(np.uint16)
-    counts, ref_counts = start_counts.copy(), start_counts.copy()
-    table[:] = 0
-    added = voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, n, t_start, width, hw, lo_at, w_lo, w_hi, counts,
-                                 table)
-    assert added == accumulate(x, y, p, cls, use_cls, a, n, ref_counts, width, hw)
-    assert counts.tolist() == ref_counts.tolist()
-    arith[:] = 0
-    voxel_table_of_chunk(t[a:], x[a:], y[a:], p[a:], cls[a:], use_cls, t_start, width, hw, lo_at, w_lo, w_hi, arith)
+    ref_counts = start_counts.copy()
+    ref_added = accumulate(x, y, p, cls, use_cls, a, n, ref_counts, width, hw)
+
+    def count_of_chunk(out, ready):
+        counts = start_counts.copy()
+        added, ready = voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, n, t_start, width, hw, lo_at, w_lo, w_hi,
+                                            counts, out, ready)
+        assert added == ref_added and counts.tolist() == ref_counts.tolist()
+        return ready
+
+    table = lazily(count_of_chunk, size)
+    arith = lazily(lambda out, ready: voxel_table_of_chunk(t[a:], x[a:], y[a:], p[a:], cls[a:], use_cls, t_start,
+                                                           width, hw, lo_at, w_lo, w_hi, out, ready), size)
     assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
-    counts, ref_counts = start_counts.copy(), start_counts.copy()
-    table[:] = 0
-    voxel_count_flat(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, counts, table)
+    ref_counts = start_counts.copy()
     add_flat(ref_counts, flat[keep], 0, int(keep.sum()))
-    assert counts.tolist() == ref_counts.tolist()
-    arith[:] = 0
-    voxel_table_kernel(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, arith)
+
+    def count_flat(out, ready):
+        counts = start_counts.copy()
+        ready = voxel_count_flat(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, counts, out, ready)
+        assert counts.tolist() == ref_counts.tolist()
+        return ready
+
+    table = lazily(count_flat, size)
+    arith = lazily(lambda out, ready: voxel_table_kernel(t[keep], flat[keep], t_start, hw, lo_at, w_lo, w_hi, out,
+                                                         ready), size)
     assert arith.view(np.uint32).tolist() == table.view(np.uint32).tolist()
 
 
