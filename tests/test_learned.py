@@ -12,9 +12,17 @@ from hypothesis import strategies as st
 from numba import njit
 
 from evstream.denoise.learned import FEATURES, LearnedFilter, Model, ModelError, load
-from evstream.denoise.learned.features import FEATURE_VERSION, HOT_SCORE, N_BINS, reference_features
+from evstream.denoise.learned.features import (
+    FAR_TICKS,
+    FEATURE_VERSION,
+    HOT_SCORE,
+    N_BINS,
+    REBASE_TICKS,
+    TICK_US,
+    reference_features,
+)
 from evstream.denoise.learned.model import DEFAULT_MODEL
-from evstream.denoise.learned.neighbours import nb8_support, reference_nb8
+from evstream.denoise.learned.neighbours import WORD_TAIL, nb8_support, reference_nb8
 from evstream.denoise.learned.train import KEEP_GRID, features_of
 from evstream.events import Geometry, NoiseClass
 from evstream.noise import NoiseSpec, inject
@@ -57,44 +65,61 @@ def test_an_mlp_stages_features_match_the_definition(seed, hidden):
 
 @njit(cache=True)
 def _nb8_all(word, bins, centres, wp, tick, pis, b8):
-    out = np.zeros((len(centres), 2), np.int64)
+    out = np.zeros((len(centres), 3), np.int64)
     for k in range(len(centres)):
-        out[k, 0], out[k, 1] = nb8_support(word, bins, centres[k], wp, tick, pis[k], b8)
+        out[k, 0], out[k, 1], out[k, 2] = nb8_support(word, bins, centres[k], wp, tick, pis[k], b8)
     return out
 
 
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 2**32), st.integers(1, 40), st.integers(1, 30),
-       st.sampled_from([130, 700, 4000, 70_000, 2**31 - 1]))
-def test_vector_neighbour_pass_matches_its_definition(seed, width, height, spread):
+       st.sampled_from([130, 700, 4000, 70_000, 2**23 - 1]), st.sampled_from([1, 2621]))
+def test_vector_neighbour_pass_matches_its_definition(seed, width, height, spread, most):
     """Ages on both sides of each support limit and of the DC idle limit, both polarities, last active
-    bins within and past the 64 counted (and across the modulo-256 wrap), random bitmaps, every pixel."""
+    bins within and past the 64 counted (and across the modulo-256 wrap), random bitmaps, random 20 ms
+    counts and ON counts up to the most a box can sum (25 × 2621 < 65536), every pixel; the map's
+    padding and tail as the stage allocates them, random too."""
     rng = np.random.default_rng(seed)
     wp = width + 4
-    size = (height + 4) * wp
-    now = int(rng.integers(spread, 2**31))
+    size = (height + 4) * wp + WORD_TAIL
+    now = int(rng.integers(spread, 2**23))
     b8 = int(rng.integers(0, 256))
     last = now - rng.integers(0, spread + 1, size)
     last_bin = (b8 - rng.integers(0, 80, size)) % 256
-    word = ((last_bin << 48) | (rng.integers(0, 1 << 16, size) << 32) | (last << 1)
-            | rng.integers(0, 2, size)).astype(np.int64)
+    count = rng.integers(0, most + 1, size)
+    on = rng.integers(0, count + 1)
+    word = ((on << 48) | (count << 32) | (last_bin << 24) | (last << 1) | rng.integers(0, 2, size)).astype(np.int64)
     bins = rng.integers(-(2**63), 2**63 - 1, size, dtype=np.int64)
     word[rng.random(size) < 0.2] = 0  # never fired
     centres = np.array([(y + 2) * wp + x + 2 for y in range(height) for x in range(width)], np.intp)
     pis = rng.integers(0, 2, len(centres)).astype(np.int64)
     got = _nb8_all(word, bins, centres, wp, now, pis, b8)
     want = [reference_nb8(word, bins, int(c), wp, now, int(q), b8) for c, q in zip(centres, pis)]
-    np.testing.assert_array_equal(got, np.array(want, np.int64).reshape(-1, 2))
+    np.testing.assert_array_equal(got, np.array(want, np.int64).reshape(-1, 3))
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.integers(0, 2**32), st.integers(-15_000, 15_000))
+def test_features_match_the_definition_across_the_rebase(seed, offset_us):
+    """The first rebase of the last-event map (its 23-bit ticks moved 2^23 - 2^20 ticks of 16 µs after
+    the first event) falls among events whose own pixels and neighbours fired a few ms before it."""
+    s = random_stream(seed, 200, mean_dt_us=500.0)
+    t = s.t.copy()
+    t[70:] += (REBASE_TICKS - FAR_TICKS) * TICK_US - (t[105] - t[0]) + offset_us
+    s = s.replace(t=t)
+    want = reference_features(s.t, s.x, s.y, s.p, s.geometry.width, s.geometry.height)
+    np.testing.assert_allclose(features_of(s), want, rtol=0, atol=1e-9)
 
 
 @settings(max_examples=5, deadline=None)
 @given(st.integers(0, 2**32), st.integers(0, 2**40))
 def test_features_match_the_definition_across_long_gaps(seed, gap_us):
-    """Gaps of hours and days: the last-event map's 31-bit ticks are rebased, which changes no feature."""
+    """Gaps of minutes, hours and days: the last-event map's 23-bit ticks are rebased, which changes no
+    feature."""
     s = random_stream(seed, 200, mean_dt_us=500.0)
     t = s.t.copy()
     t[70:] += gap_us
-    t[140:] += 3 * (1 << 34)  # past the rebase point (2^30 ticks of 16 µs) from any start
+    t[140:] += 3 * (1 << 34)  # past the rebase point (2^23 ticks of 16 µs) from any start
     s = s.replace(t=t)
     want = reference_features(s.t, s.x, s.y, s.p, s.geometry.width, s.geometry.height)
     np.testing.assert_allclose(features_of(s), want, rtol=0, atol=1e-9)

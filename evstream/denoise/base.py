@@ -9,15 +9,16 @@ import numpy as np
 from ..events import EventChunk, NoiseClass
 
 
-def grow_fifo(state: dict, keys: tuple[str, ...], state_key: str = "fifo_state") -> None:
+def grow_fifo(state: dict, keys: tuple[str, ...], state_key: str = "fifo_state", record: int = 1) -> None:
     """Double the FIFO rings `state[k]` a kernel fills (it returns early when they are full), unrolling
-    them so that the head is at 0; `state[state_key]` starts with [head, size]."""
+    them so that the head is at 0; `state[state_key]` starts with [head, size], both counted in records
+    of `record` consecutive cells (a ring of (time, entry) pairs: 2)."""
     head, size = state[state_key][:2]
-    cap = len(state[keys[0]])
+    cap = len(state[keys[0]]) // record
     order = (head + np.arange(size)) % cap
     for k in keys:
-        new = np.zeros(2 * cap, state[k].dtype)
-        new[:size] = state[k][order]
+        new = np.zeros(2 * cap * record, state[k].dtype)
+        new[: size * record] = state[k].reshape(cap, record)[order].reshape(-1)
         state[k] = new
     state[state_key][:2] = (0, size)
 

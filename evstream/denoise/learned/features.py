@@ -19,10 +19,10 @@ For event m at (x, y, t, p), from the events before it only (FEATURES, version F
   neighbours count as never active). A hot pixel is active in nearly every bin, its neighbours not.
 
 State, all bounded (O(W·H + events per 20 ms)): one int64 word per pixel (last tick and polarity,
-20 ms count, last active DC bin) and one int64 bitmap of its active bins (bit k: active in the bin k
-before its last), read for the pixel and its 8 neighbours in one vector pass (neighbours.py); a
-row-summed count map packing all and ON counts (`rowsum`), block counts, and the FIFO of the window's
-events. The DC components need no FIFO: a bitmap shifted by the bins elapsed drops the old bins.
+last active DC bin, its events and ON events in the last 20 ms) and one int64 bitmap of its active bins
+(bit k: active in the bin k before its last), read for the pixel, its 8 neighbours and its 5×5 box in
+one vector pass (neighbours.py); block counts; and the FIFO of the window's events, one ring of (time,
+entry) pairs. The DC components need no FIFO: a bitmap shifted by the bins elapsed drops the old bins.
 
 After the model, two rules (a linear score cannot express either) make an event a HOT_PIXEL (score
 HOT_SCORE): its pixel fired `hot_min` (4) times or more in the last 20 ms and more than a third of its
@@ -45,8 +45,7 @@ import numpy as np
 from ...jit import njit
 from ...nowrap import ix
 from ..prefetch import prefetch
-from ..rowsum import column_sum, padded_map, row_add
-from .neighbours import SUPPORT_TICKS, nb8_support
+from .neighbours import BIN_SHIFT, COUNT_SHIFT, SUPPORT_TICKS, TICK_MASK, WORD_TAIL, nb8_support
 
 FEATURE_VERSION = 2
 FEATURES = (
@@ -65,7 +64,7 @@ AGE_SHIFT = 2          # age quantised to 4 ticks = 64 µs
 AGE_CELLS = 4096       # ... up to 4096 · 64 µs = 262 ms
 LOG_CELLS = 1 << 16    # log1p table for counts
 FAR_TICKS = 1 << 20    # "never" and anything older: far past every window and cap
-REBASE_TICKS = 1 << 30  # the 31-bit tick field is rebased (an O(W·H) pass) once every ~4.8 h of stream
+REBASE_TICKS = 1 << 23  # the 23-bit tick field is rebased (an O(W·H) pass) once every ~2 min of stream
 PREFETCH_EVENTS = 4    # each event asks for the word and bitmap rows of the event this far ahead
 HOT_SCORE = -1e9       # the score of an event a hot-pixel rule rejects
 DC_MARGIN = 51         # the DC rule: 8 · DC_own - Σ DC_nb > 51 bins, i.e. DC_own - mean DC_nb > 0.1
@@ -74,12 +73,15 @@ LARGE_SHIFT = 6
 LOG_LARGE = math.log(1 << LARGE_SHIFT)
 LOG1P = np.log1p(np.arange(LOG_CELLS, dtype=np.float64))
 AGE_LOG1P_MS = np.log1p(np.arange(AGE_CELLS, dtype=np.float64) * (TICK_US << AGE_SHIFT) / 1000.0)
+TABLES = np.concatenate([LOG1P, AGE_LOG1P_MS])  # one array for the kernel: age cell k at LOG_CELLS + k
 
-# One int64 word per pixel (padded like the count map) holds everything read about a pixel, so that
-# the 8 neighbours cost one read each: bits 0-31 (tick << 1) | polarity of its last event, the tick
-# counted from `base` (0 = never); 32-47 its event count in the last 20 ms; 48-55 its last active DC bin
-# modulo 256 (with `bins`, its bitmap, this gives its DC component: neighbours.py).
-OWN_ONE = 1 << 32
+# One int64 word per pixel (padded by RADIUS_PX on each side, and WORD_TAIL words at the end) holds
+# everything read about a pixel, so that the 8 neighbours and the 5×5 box cost one vector read per row:
+# bits 0-23 (tick << 1) | polarity of its last event, the tick counted from `base` (0 = never); 24-31
+# its last active DC bin modulo 256 (with `bins`, its bitmap, this gives its DC component:
+# neighbours.py); 32-47 its events in the last 20 ms; 48-63 the ON ones among them.
+OWN_ONE = 1 << COUNT_SHIFT
+ON_ONE = 1 << (COUNT_SHIFT + 16)
 
 
 def block_log_scale(width: int, height: int) -> np.ndarray:
@@ -97,7 +99,7 @@ def _placed(like: np.ndarray, offset_bytes: int) -> np.ndarray:
     CPU's store-to-load forwarding): placed 1 KiB apart, the kernel measured ~1 ns/event (3 %) faster."""
     buf = np.zeros(like.nbytes + 4096 + offset_bytes, np.uint8)
     start = (-buf.ctypes.data) % 4096 + offset_bytes
-    return buf[start : start + like.nbytes].view(like.dtype)
+    return buf[start : start + like.nbytes].view(like.dtype).reshape(like.shape)
 
 
 def new_state(width: int, height: int) -> dict:
@@ -107,15 +109,12 @@ def new_state(width: int, height: int) -> dict:
     cap = 1 << 12
     return {
         "width_padded": wp,
-        "word": _placed(np.empty((height + 2 * r) * wp, np.int64), 0),
-        # one row-summed map, each cell packing (all events) | (ON events) << 16: one read per row gives
-        # both N and N_ON (counts per 20 ms in a 5×5 box stay far below 65536)
-        "hsum": _placed(padded_map(width, height, r, np.uint32), 2048),
+        "word": _placed(np.empty((height + 2 * r) * wp + WORD_TAIL, np.int64), 0),
         "block": np.zeros(-(-width // BLOCK_PX) * -(-height // BLOCK_PX), np.int32),
         "block_log_scale": block_log_scale(width, height),
-        "fifo_t": _placed(np.empty(cap, np.int64), 3072),   # the 20 ms window's events: time ...
-        "fifo_pos": _placed(np.empty(cap, np.int64), 3584),  # ... and count-map row | polarity << 32 | block << 33
-        "fifo_state": np.zeros(2, np.int64),  # head, size
+        # the 20 ms window's events, (time, map index | polarity << 32 | block << 33) each
+        "fifo": _placed(np.empty(2 * cap, np.int64), 3072),
+        "fifo_state": np.zeros(2, np.int64),  # head, size (in pairs)
         # per pixel: its active DC bins, a bitmap
         "bins": _placed(np.empty((height + 2 * r) * wp, np.int64), 1024),
         "clock": np.array([0, 0, 0], np.int64),  # tick base, current DC bin, 1 once started
@@ -137,7 +136,7 @@ def _rebase(word, shift):
     (never), which changes no feature: such a pixel's age was >= FAR_TICKS before and after."""
     for k in range(len(word)):
         w = word[k]
-        tf = w & 0xFFFFFFFF
+        tf = w & TICK_MASK
         tick = max((tf >> 1) - shift, 0)
         word[k] = (w - tf) | (tick << 1) | (tf & 1)
 
@@ -165,27 +164,27 @@ BATCH = 120  # an MLP's events per scoring pass (their features, 11 × 120 float
 def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_live: bool):
     """The kernel for one configuration: `n_hidden` 0 scores with a logistic model (w1[0], b1[0]),
     else with a ReLU layer of `n_hidden` units (w1, b1) and an output layer (w2, b2). The features are
-    scalars (registers), the 8 neighbours one vector pass (neighbours.py), the FIFO stores each
-    event's block and polarity with its map row (no division on expiry). Each event prefetches the
-    word and bitmap rows of the event PREFETCH_EVENTS ahead: the two maps miss the L2 cache.
+    scalars (registers), the 8 neighbours and the 5×5 box one vector pass (neighbours.py), the FIFO
+    stores each event's block and polarity with its map index (no division on expiry; an expiry
+    updates one word and one block count). Each event prefetches the word and bitmap rows of the event
+    PREFETCH_EVENTS ahead: the two maps miss the L2 cache.
 
     A logistic score is computed event by event. An MLP's is not: the events of a batch (BATCH) keep
     their features in a matrix (feature × event), and a scoring pass after the batch runs along it one
     hidden unit at a time, loops with no table lookups or dependences between events that LLVM
     vectorises (measured 1.6-1.9× faster for 8 and 16 units; for the logistic score the same pass
     was 6 % slower than scoring in place)."""
-    L = 2 * RADIUS_PX + 1
     R = RADIUS_PX
     batch = BATCH if n_hidden else 1 << 62  # (a logistic score needs no batches)
 
     @njit(cache=True, nogil=True, fastmath=True)
-    def kernel(t, x, y, p, start, codes, threshold, hot_min, dc_margin, word, hsum, block, blog, wp,
-               fifo_t, fifo_pos, fifo_state, bins, clock, width, height,
-               w1, b1, w2, b2, out_score, out_feat, log1p, age_log1p):
+    def kernel(t, x, y, p, start, codes, threshold, hot_min, dc_margin, word, block, blog, wp,
+               fifo, fifo_state, bins, clock, width, height,
+               w1, b1, w2, b2, out_score, out_feat, tables):
         """Score events `start..` whose code is SIGNAL: BACKGROUND below `threshold`, HOT_PIXEL by either
         hot-pixel rule (module docstring). Returns the index reached: len(t) unless a FIFO is full (the
         caller grows it and calls again from there)."""
-        cap = len(fifo_t)
+        cap = len(fifo) >> 1
         mask = cap - 1
         head = fifo_state[0]
         size = fifo_state[1]
@@ -202,6 +201,9 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
         counts = np.empty(m_max, np.int64)
         score = np.empty(m_max, np.float64)
         hidden = np.empty(m_max, np.float64)
+        # a logistic model's weights as scalars: no array pointers held across the loop
+        c0, c1, c2, c3, c4, c5 = w1[0, 0], w1[0, 1], w1[0, 2], w1[0, 3], w1[0, 4], w1[0, 5]
+        c6, c7, c8, c9, c10, c_bias = w1[0, 6], w1[0, 7], w1[0, 8], w1[0, 9], w1[0, 10], b1[0]
         n = len(t)
         i = start
         while i < n:
@@ -216,8 +218,9 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 ahead = min(i + PREFETCH_EVENTS, n - 1)  # its upper left neighbour
                 row = (np.intp(y[ix(ahead)]) + R - 1) * wp + np.intp(x[ix(ahead)]) + R - 1
                 for k in range(3):
-                    prefetch(word, row + k * wp)
                     prefetch(bins, row + k * wp)
+                for k in range(-1, 4):  # the box's rows of words, at the pixel's column
+                    prefetch(word, row + k * wp + 1)
                 ti = t[ix(i)]
                 if started == 0:
                     base = (ti >> 4) - FAR_TICKS
@@ -228,11 +231,9 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                     base += tick - FAR_TICKS
                     tick = np.int64(FAR_TICKS)  # int64, not a literal: typed alike wherever compiled (pycc too)
                 oldest = ti - WINDOW_US
-                while size > 0 and fifo_t[ix(head)] <= oldest:
-                    e = fifo_pos[ix(head)]
-                    pos = e & 0xFFFFFFFF
-                    row_add(hsum, pos, -(1 + (((e >> 32) & 1) << 16)), L)
-                    word[ix(pos + R)] -= OWN_ONE
+                while size > 0 and fifo[ix(2 * head)] <= oldest:
+                    e = fifo[ix(2 * head + 1)]
+                    word[ix(e & 0xFFFFFFFF)] -= OWN_ONE + ((e & (1 << 32)) << 16)  # its count, and ON count
                     block[ix(e >> 33)] -= 1
                     head = (head + 1) & mask
                     size -= 1
@@ -242,25 +243,23 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                 xi = np.intp(x[ix(i)])
                 yi = np.intp(y[ix(i)])
                 pi = np.intp(p[ix(i)])
-                corner = yi * wp + xi
-                packed_sum = column_sum(hsum, corner + R, wp, L)
-                n_all = packed_sum & 0xFFFF
-                n1 = packed_sum >> 16  # ON events in the box
-                n0 = n_all - n1
                 bk = (yi >> 4) * bw + (xi >> 4)
-                centre = corner + R * wp + R
-                # the pixel and its 8 neighbours in one vector pass (neighbours.py)
-                nb, own_bins = nb8_support(word, bins, centre, wp, tick, pi, b & 0xFF)
+                centre = (yi + R) * wp + xi + R
+                # the pixel, its 8 neighbours and its 5×5 box in one vector pass (neighbours.py)
+                nb, own_bins, box = nb8_support(word, bins, centre, wp, tick, pi, b & 0xFF)
+                n_all = box & 0xFFFF
+                n1 = box >> 16  # ON events in the box
+                n0 = n_all - n1
                 w = word[ix(centre)]
-                own_c = (w >> 32) & 0xFFFF
-                age_own = tick - ((w & 0xFFFFFFFF) >> 1)
+                own_c = (w >> COUNT_SHIFT) & 0xFFFF
+                age_own = tick - ((w & TICK_MASK) >> 1)
                 blk = block[ix(bk)]
-                f0 = log1p[ix(n_all)]  # < 65536: the 16-bit fields they are kept in
-                f1 = log1p[ix(n1 if pi else n0)]
-                f2 = log1p[ix(own_c)]
-                f3 = _log1p_count(log1p, size) + log_global_scale
-                f4 = _log1p_count(log1p, blk) + blog[ix(bk)]
-                f8 = age_log1p[ix(min(age_own >> AGE_SHIFT, AGE_CELLS - 1))]
+                f0 = tables[ix(n_all)]  # < 65536: the 16-bit fields they are kept in
+                f1 = tables[ix(n1 if pi else n0)]
+                f2 = tables[ix(own_c)]
+                f3 = _log1p_count(tables, size) + log_global_scale
+                f4 = _log1p_count(tables, blk) + blog[ix(bk)]
+                f8 = tables[ix(LOG_CELLS + min(age_own >> AGE_SHIFT, AGE_CELLS - 1))]
                 if n_hidden == 0:
                     f5, f6, f7, f9, f10 = _counted(nb)
                     if want_features:
@@ -275,9 +274,8 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                         out_feat[ix(i), 8] = f8
                         out_feat[ix(i), 9] = f9
                         out_feat[ix(i), 10] = f10
-                    s = (b1[0] + w1[0, 0] * f0 + w1[0, 1] * f1 + w1[0, 2] * f2 + w1[0, 3] * f3 + w1[0, 4] * f4
-                         + w1[0, 5] * f5 + w1[0, 6] * f6 + w1[0, 7] * f7 + w1[0, 8] * f8 + w1[0, 9] * f9
-                         + w1[0, 10] * f10)
+                    s = (c_bias + c0 * f0 + c1 * f1 + c2 * f2 + c3 * f3 + c4 * f4 + c5 * f5 + c6 * f6
+                         + c7 * f7 + c8 * f8 + c9 * f9 + c10 * f10)
                     hot = _hot(own_c, n_all, nb, hot_min, dc_margin)
                     s = HOT_SCORE if hot else s
                     if want_score:
@@ -294,15 +292,14 @@ def feature_kernel(n_hidden: int, want_score: bool, want_features: bool, all_liv
                     feat[8, k] = f8
                     counts[k] = n_all | (own_c << 16)
                     nbs[k] = nb
-                pos = corner + R * wp
-                row_add(hsum, pos, 1 + (pi << 16), L)
                 block[ix(bk)] = blk + 1
                 slot = (head + size) & mask
-                fifo_t[ix(slot)] = ti
-                fifo_pos[ix(slot)] = pos | (pi << 32) | (bk << 33)
+                fifo[ix(2 * slot)] = ti
+                fifo[ix(2 * slot + 1)] = centre | (pi << 32) | (bk << 33)
                 size += 1
                 bins[ix(centre)] = own_bins | 1  # active in bin b
-                word[ix(centre)] = ((b & 0xFF) << 48) | ((own_c + 1) << 32) | (tick << 1) | pi
+                word[ix(centre)] = ((((w >> COUNT_SHIFT) + 1 + (pi << 16)) << COUNT_SHIFT) | ((b & 0xFF) << BIN_SHIFT)
+                                    | (tick << 1) | pi)
                 i += 1
             if n_hidden == 0:
                 continue

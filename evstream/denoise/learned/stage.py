@@ -18,7 +18,7 @@ import numpy as np
 from ...events import EventChunk, NoiseClass, shown
 from ...pipeline import register
 from ..base import InPlaceClassifier, grow_fifo
-from .features import AGE_LOG1P_MS, HISTORY_US, LOG1P, N_BINS, N_FEATURES, feature_kernel, new_state
+from .features import HISTORY_US, N_BINS, N_FEATURES, TABLES, feature_kernel, new_state
 from .model import Model, load
 
 
@@ -79,13 +79,12 @@ class LearnedFilter(InPlaceClassifier):
         i = 0
         while True:
             i = kernel(chunk.t, chunk.x, chunk.y, chunk.p, i, codes, self._threshold, self.hot_min,
-                       self._dc_margin, s["word"], s["hsum"], s["block"], s["block_log_scale"],
-                       s["width_padded"], s["fifo_t"], s["fifo_pos"], s["fifo_state"], s["bins"],
-                       s["clock"], g.width, g.height, w1, b1, w2, b2,
-                       score, feats, LOG1P, AGE_LOG1P_MS)
+                       self._dc_margin, s["word"], s["block"], s["block_log_scale"], s["width_padded"],
+                       s["fifo"], s["fifo_state"], s["bins"], s["clock"], g.width, g.height, w1, b1, w2, b2,
+                       score, feats, TABLES)
             if i >= n:
                 return score
-            grow_fifo(s, ("fifo_t", "fifo_pos"))
+            grow_fifo(s, ("fifo",), record=2)
 
     def features(self, chunk: EventChunk) -> np.ndarray:
         """The feature matrix of an unclassified chunk (advances the state like `classify`)."""
