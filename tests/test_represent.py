@@ -12,13 +12,14 @@ from hypothesis import strategies as st
 
 from evstream.events import EventChunk, Geometry
 from evstream.framing.base import COUNT_MAX
-from evstream.framing.fixed import accumulate
+from evstream.framing.fixed import FN_DONE, FN_FULL, FN_TIMEOUT, accumulate, fn_scan
 from evstream.framing.overlap import add_flat
 from evstream.framing.represent import (
     EXP_FLOOR,
     NEVER_US,
     REPRESENTATIONS,
     Representation,
+    last_time_count_of,
     last_time_of,
     rebase,
     surface,
@@ -26,6 +27,7 @@ from evstream.framing.represent import (
     timestamp_kernel,
     timestamp_of_chunk,
     voxel_count_flat,
+    voxel_count_kernel,
     voxel_count_of_chunk,
     voxel_kernel,
     voxel_of_chunk,
@@ -389,6 +391,74 @@ def test_last_time_kernel_matches_plain_python(seed, n, use_cls, dtype):
         if not use_cls or cls[i] == 0:
             ref[int(p[i]) * hw + int(y[i]) * w + int(x[i])] = max(int(t[i]) - base, never)
     assert last.tolist() == ref
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.booleans())
+def test_last_time_and_counts_in_one_pass_match_plain_python(seed, n, use_cls):
+    """Over fixed time and fixed-count windows the time surface counts the frame's events as it stores
+    their times: the newest times of `last_time_of` and the saturating counts of `accumulate`."""
+    rng = np.random.default_rng(seed)
+    w, hw = 5, 20
+    t, x, y, p, cls = random_events(rng, n, w, 4, t0=int(rng.integers(0, 10**6)))
+    start = rng.choice([0, 7, COUNT_MAX - 1, COUNT_MAX], 2 * hw).astype(np.uint16)
+    last, counts = np.full(2 * hw, -(2**31), np.int32), start.copy()
+    last_time_count_of(t, x, y, p, cls, use_cls, w, hw, 1000, last, counts)
+    ref_last, ref_counts = [-(2**31)] * (2 * hw), [int(c) for c in start]
+    for i in range(n):
+        if not use_cls or cls[i] == 0:
+            f = int(p[i]) * hw + int(y[i]) * w + int(x[i])
+            ref_last[f] = max(int(t[i]) - 1000, -(2**31))
+            ref_counts[f] = min(ref_counts[f] + 1, COUNT_MAX)
+    assert last.tolist() == ref_last and counts.tolist() == ref_counts
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(0, 300), st.integers(1, 6))
+def test_voxel_and_counts_of_a_fixed_count_window_match_plain_python(seed, n, bins):
+    rng = np.random.default_rng(seed)
+    hw = 12
+    t = np.sort(rng.integers(100, 100 + max(1, n) * 3, n)).astype(np.int64)
+    f = rng.integers(0, 2 * hw, n).astype(np.uint32)
+    t_start, t_end = 100, 100 + max(1, n) * 3 + int(rng.integers(0, 5))
+    start = rng.choice([0, COUNT_MAX - 1, COUNT_MAX], 2 * hw).astype(np.uint16)
+    ref_counts = [int(c) for c in start]
+    for v in f:
+        ref_counts[v] = min(ref_counts[v] + 1, COUNT_MAX)
+
+    def run(out, ready):
+        counts = start.copy()
+        ready = voxel_count_kernel(t, f, t_start, t_end, bins, hw, counts, out, ready)
+        assert counts.tolist() == ref_counts
+        return ready
+
+    vox = lazily(run, bins * hw)
+    np.testing.assert_allclose(vox, voxel_plain(t, f % hw, f >= hw, t_start, t_end, bins, hw), atol=1e-5)
+    same = lazily(lambda out, ready: voxel_kernel(t, f, t_start, t_end, bins, hw, out, ready), bins * hw)
+    assert vox.view(np.uint32).tolist() == same.view(np.uint32).tolist()
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.booleans(), st.integers(1, 40), st.integers(1, 400))
+def test_fn_scan_finds_the_windows_of_plain_python(seed, n, use_cls, n_target, max_window):
+    """Fixed-count windows whose representation counts their events: the framer only finds the windows
+    (`fn_scan`): fill a frame of n_target from index a, or time out max_window after its first event."""
+    rng = np.random.default_rng(seed)
+    t, _, _, _, cls = random_events(rng, n, 4, 3)
+    a = int(rng.integers(0, n + 1))
+    i, have, first, last, status = fn_scan(t, cls, use_cls, a, 0, n_target, 0, 0, max_window)
+    j, members, want = a, [], FN_DONE
+    while j < n:
+        if members and t[j] >= t[members[0]] + max_window:
+            want = FN_TIMEOUT
+            break
+        if not use_cls or cls[j] == 0:
+            members.append(j)
+            if len(members) == n_target:
+                j += 1
+                want = FN_FULL
+                break
+        j += 1
+    assert (i, have, status) == (j, len(members), want)
+    if members:
+        assert (first, last) == (t[members[0]], t[members[-1]])
 
 
 @given(st.integers(0, 2**32 - 1), st.integers(0, 2**33))

@@ -76,6 +76,27 @@ def fn_run(t, x, y, p, cls, use_cls, i, counts, width, hw, n_have, n_target, fir
     return i, n_have, first_t, last_t, FN_DONE
 
 
+@njit(cache=True, nogil=True)
+def fn_scan(t, cls, use_cls, i, n_have, n_target, first_t, last_t, max_window_us):
+    """`fn_run` without the counts (for a follower that counts the frame's events itself): the same
+    windows, reading only times and classes."""
+    n = len(t)
+    while i < n:
+        j = ix(i)
+        ti = t[j]
+        if n_have > 0 and ti >= first_t + max_window_us:
+            return i, n_have, first_t, last_t, FN_TIMEOUT
+        if not use_cls or cls[j] == 0:
+            if n_have == 0:
+                first_t = ti
+            n_have += 1
+            last_t = ti
+            if n_have == n_target:
+                return i + 1, n_have, first_t, last_t, FN_FULL
+        i += 1
+    return i, n_have, first_t, last_t, FN_DONE
+
+
 @register("framer", "fw")
 @dataclass(eq=False)
 class FixedWindow(FramerBase):
@@ -85,7 +106,9 @@ class FixedWindow(FramerBase):
     all_events: bool = False
     max_empty_frames: int = 1000
     # A representation framer may count the frames' events itself while it adds them to its arrays, in
-    # one pass: `follower.add(chunk, cls, use_cls, a, b, start, end, counts)`, as `SlidingFramer.follower`.
+    # one pass: `follower.add(chunk, cls, use_cls, a, b, start, end, counts)`, as `SlidingFramer.follower`,
+    # returns how many of the events [a, b) count, having counted them into `counts` or (the time surface)
+    # about to count them in its own pass over the chunk, before it hands the frames on.
     follower = None  # not annotated: a class attribute, not a parameter
 
     def __post_init__(self):
@@ -159,6 +182,10 @@ class FixedCount(FramerBase):
     n_events: int = 8000
     max_window_us: int | None = 1_000_000
     all_events: bool = False
+    # A representation framer that counts each frame's events into its counts itself, in the pass that
+    # makes its array, before it hands the frame on: the frames' counts are then left zeroed here (one
+    # pass over the events instead of two; `fn_scan` finds the same windows).
+    follower = None  # not annotated: a class attribute, not a parameter
 
     def __post_init__(self):
         check_positive_int(self, "n_events")
@@ -188,9 +215,13 @@ class FixedCount(FramerBase):
         cls, use_cls = self._cls(chunk)
         i = 0
         while i < len(chunk):
-            i, self.n, self.first_t, self.last_t, status = fn_run(
-                chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, self.counts, self._width, self._hw,
-                self.n, self.n_events, self.first_t, self.last_t, self._max_window)
+            if self.follower is None:
+                i, self.n, self.first_t, self.last_t, status = fn_run(
+                    chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, self.counts, self._width, self._hw,
+                    self.n, self.n_events, self.first_t, self.last_t, self._max_window)
+            else:
+                i, self.n, self.first_t, self.last_t, status = fn_scan(
+                    chunk.t, cls, use_cls, i, self.n, self.n_events, self.first_t, self.last_t, self._max_window)
             if status == FN_FULL:
                 out.append(self._close(self.last_t + 1))
             elif status == FN_TIMEOUT:

@@ -126,6 +126,23 @@ def voxel_kernel(buf_t, buf_f, t_start, t_end, bins, hw, out, ready):
 
 
 @njit(cache=True, nogil=True)
+def voxel_count_kernel(buf_t, buf_f, t_start, t_end, bins, hw, counts, out, ready):
+    """`add_flat` (the frame's saturating counts) and `voxel_kernel` over the same buffered events, in one
+    pass (fixed-count windows, whose framer leaves the counts to it). Returns `ready`."""
+    scale = (bins - 1) / max(1, t_end - 1 - t_start)
+    for j in range(len(buf_t)):
+        f = np.intp(buf_f[j])
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+        on = np.intp(f >= hw)
+        lo, w = _bin_of(buf_t[j] - t_start, scale)
+        if (lo + 1) * hw >= ready:
+            ready = _zero_bins(out, ready, (lo + 2) * hw)
+        _voxel_add(out, f - hw * on, on, lo, w, bins - 1, hw)
+    return ready
+
+
+@njit(cache=True, nogil=True)
 def voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, bins, width, hw, out, ready):
     """`voxel_kernel` straight from a chunk's events (the counted ones: `cls` 0 when `use_cls`), for
     windows whose span is known when they open (fixed time windows): the same arithmetic per event."""
@@ -272,6 +289,19 @@ def last_time_of(t, x, y, p, cls, use_cls, width, hw, base, last_t):
 
 
 @njit(cache=True, nogil=True)
+def last_time_count_of(t, x, y, p, cls, use_cls, width, hw, base, last_t, counts):
+    """`last_time_of` and `accumulate` (the frame's saturating counts) in one pass over the events."""
+    floor = np.iinfo(last_t.dtype).min
+    for i in range(len(t)):
+        if use_cls and cls[i] != 0:
+            continue
+        f = np.intp(p[i]) * hw + np.intp(y[i]) * width + np.intp(x[i])
+        last_t[f] = max(t[i] - base, floor)
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+
+
+@njit(cache=True, nogil=True)
 def rebase(last_t, delta):
     """last_t −= delta (>= 0: the base only moves forward), those that fall below the dtype's range
     becoming its smallest value ("never")."""
@@ -379,6 +409,9 @@ class RepresentationFramer(FramerBase):
     window's representation. Subclasses give `channels_of` and `_compute`."""
 
     needs_events: ClassVar[bool] = True
+    # Over fixed-count windows: `_compute` counts each frame's events into its counts as it makes the
+    # array (the windowing framer then only finds the windows: `FixedCount.follower`).
+    counts_fn: ClassVar[bool] = False
 
     window: str = "fw"
     window_us: int | None = None
@@ -428,6 +461,8 @@ class RepresentationFramer(FramerBase):
         self._direct = self.window != "fn" and type(self)._add is not RepresentationFramer._add
         if self._direct:
             self.inner.follower = self  # it calls `add` and `add_flat` as it counts
+        elif self.window == "fn" and self.counts_fn:
+            self.inner.follower = self  # it leaves each frame's counts to `_compute`
         self._open: dict[int, _Grid] = {}
 
     @property
@@ -639,6 +674,7 @@ class VoxelGrid(RepresentationFramer):
     time between the two nearest bins."""
 
     bins: int = 5
+    counts_fn: ClassVar[bool] = True
 
     def __post_init__(self):
         check_positive_int(self, "bins")
@@ -698,9 +734,11 @@ class VoxelGrid(RepresentationFramer):
         return self._tab
 
     def _compute(self, fr: Frame, a: int, b: int) -> np.ndarray:
+        """Fixed-count windows: the array and the frame's counts, from the window's buffered events."""
         grid = self._new_grid()
         la, lb = self._local(a, b)
-        self._add_flat(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, grid)
+        grid.ready = voxel_count_kernel(self._buf.t[la:lb], self._buf.f[la:lb], fr.t_start, fr.t_end, self.bins,
+                                        self._hw, fr.counts.reshape(-1), grid.flat, grid.ready)
         return grid.done()
 
 
@@ -714,10 +752,13 @@ class TimeSurface(RepresentationFramer):
     from the chunk (the events before the end, or for fixed-count windows up to the window's last
     counted event), then the rest of the chunk is applied. That is exact: a window emitted by a later
     push ends after every event of this chunk (it would have closed on this chunk's watermark
-    otherwise), and an open fixed-count window holds every counted event after the emitted ones."""
+    otherwise), and an open fixed-count window holds every counted event after the emitted ones.
+    Over fixed time and fixed-count windows it counts the frames' events too, in the same pass (the
+    windowing framer leaves them to it: `FixedWindow.follower`, `FixedCount.follower`)."""
 
     tau_us: float = 50_000.0
     needs_events: ClassVar[bool] = False
+    counts_fn: ClassVar[bool] = True
 
     def __post_init__(self):
         tau = self.tau_us
@@ -731,9 +772,17 @@ class TimeSurface(RepresentationFramer):
 
     def _reset(self) -> None:
         super()._reset()
+        if self.window == "fw":
+            self.inner.follower = self  # `add` below: the counts are left to `_surfaces`
+        self._counting = self.window in ("fw", "fn")  # `_apply` counts the frames' events
         self._last_t = None
         self._counted = 0  # counted events in the chunks before this one
         self._emitted = 0  # fn: counted events in the windows emitted so far
+
+    def add(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, t_start: int, t_end: int, counts) -> int:
+        """Fixed time windows (called by the windowing framer): how many of the events [a, b) count. They are
+        counted into the frame's counts by `_surfaces` as it applies them, before the frame is handed on."""
+        return b - a if not use_cls else int(np.count_nonzero(cls[a:b] == 0))
 
     def _on_geometry(self) -> None:
         # int32 times (relative to `_base`) halve the memory each event and each window touch. A pixel
@@ -745,15 +794,20 @@ class TimeSurface(RepresentationFramer):
             self._last_t = np.full(2 * self._hw, NEVER_US, np.int64)
         self._base = 0
 
-    def _apply(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int) -> None:
-        """Bring the newest times up to date with the chunk's events [a, b)."""
+    def _apply(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, counts) -> None:
+        """Bring the newest times up to date with the chunk's events [a, b), and count them into the flat
+        `counts` of the frame that holds them (None: the windowing framer counted them)."""
         last = self._last_t
         if last.dtype == np.int32 and int(chunk.t[b - 1]) - self._base >= REBASE_US:
             new_base = int(chunk.t[b - 1])  # events up to 2^31 µs older still fit; older ones become "never"
             rebase(last, new_base - self._base)
             self._base = new_base
-        last_time_of(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls, self._width,
-                     self._hw, self._base, last)
+        if counts is None:
+            last_time_of(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls, self._width,
+                         self._hw, self._base, last)
+        else:
+            last_time_count_of(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls,
+                               self._width, self._hw, self._base, last, counts)
 
     def push(self, chunk: EventChunk) -> list[Representation]:
         if len(chunk) or self.geometry is not None:
@@ -784,7 +838,7 @@ class TimeSurface(RepresentationFramer):
                 else:
                     j = i + int(np.searchsorted(chunk.t[i:], fr.t_end, side="left"))
                 if j > i:
-                    self._apply(chunk, cls, use_cls, i, j)
+                    self._apply(chunk, cls, use_cls, i, j, fr.counts.reshape(-1) if self._counting else None)
                     i = j
             if self._last_t is None:
                 data = self._new_data(2)
@@ -794,8 +848,8 @@ class TimeSurface(RepresentationFramer):
                 surface(self._last_t, fr.t_end - self._base, self.tau_us, data.reshape(-1))
             out.append(Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind, self.channels, data))
         if n:
-            if i < n:
-                self._apply(chunk, cls, use_cls, i, n)
+            if i < n:  # the open window's events
+                self._apply(chunk, cls, use_cls, i, n, self.inner.counts if self._counting else None)
             self._counted += n if not use_cls else int(np.count_nonzero(cls == 0))
         return out
 
