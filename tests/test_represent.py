@@ -16,6 +16,7 @@ from evstream.framing.fixed import FN_DONE, FN_FULL, FN_TIMEOUT, accumulate, fn_
 from evstream.framing.overlap import add_flat
 from evstream.framing.represent import (
     EXP_FLOOR,
+    EXP_MIN_NORMAL,
     NEVER_US,
     REPRESENTATIONS,
     Representation,
@@ -473,7 +474,8 @@ def test_rebase_matches_plain_python(seed, delta):
 @given(st.integers(0, 2**32 - 1), st.sampled_from([np.int32, np.int64]), st.floats(0.5, 2.0**40))
 def test_surface_exponent_and_surface_match_plain_python(seed, dtype, tau):
     """The exponent −(t_now − t_last)/τ is rounded to float32 from the exact µs difference, floored at
-    EXP_FLOOR; the surface is its float32 exp, 0 for "never" (NEVER_US for int64 times, the int32 minimum)."""
+    EXP_FLOOR below EXP_MIN_NORMAL; the surface is its float32 exp, 0 for "never" (NEVER_US for int64 times,
+    the int32 minimum), and never a subnormal number (their exp is slow)."""
     rng = np.random.default_rng(seed)
     never = NEVER_US if dtype is np.int64 else int(np.iinfo(np.int32).min)
     t_now = int(rng.integers(0, 2**30))
@@ -481,16 +483,19 @@ def test_surface_exponent_and_surface_match_plain_python(seed, dtype, tau):
     last[rng.random(40) < 0.3] = never
     if dtype is np.int32 and tau * 128 > 2**31:
         tau = 2**31 / 128  # the framer keeps int32 times only for these τ ("never" must mean 0)
+    last[:4] = [t_now - round(k * tau) for k in (86.9, 87.5, 95.0, 103.5)]  # around and in the subnormal range
     ex = np.zeros(40, np.float32)
     surface_exponent(last, t_now, 1.0 / tau, ex)
-    ref = [max(float(np.float32((int(v) - t_now) * (1.0 / tau))), EXP_FLOOR) for v in last]
+    exact = [float(np.float32((int(v) - t_now) * (1.0 / tau))) for v in last]
+    ref = [e if e >= np.float32(EXP_MIN_NORMAL) else EXP_FLOOR for e in exact]
     assert ex.tolist() == [float(np.float32(r)) for r in ref]
     sf = np.zeros(40, np.float32)
     surface(last, t_now, tau, sf)
     plain = [0.0 if v == never else math.exp(-(t_now - int(v)) / tau) for v in last]
     # float32 exponent (relative error 2^-24 of up to 110) then float32 exp: within 1e-5 relative
-    np.testing.assert_allclose(sf, plain, rtol=1e-5, atol=1e-37)
+    np.testing.assert_allclose(sf, plain, rtol=1e-5, atol=1.2e-38)
     assert all(sf[last == never] == 0)
+    assert not np.any((sf > 0) & (sf < np.finfo(np.float32).tiny))
 
 
 # -- the invariant kit ------------------------------------------------------------------------------
