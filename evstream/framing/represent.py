@@ -321,8 +321,8 @@ EXP_MIN_NORMAL = -87.3
 @njit(cache=True, nogil=True)
 def surface_exponent(last_t, t_now, inv_tau, out):
     """out[f] = −(t_now − last_t[f]) / τ in float32 (the µs difference taken exactly in int64 first), or
-    EXP_FLOOR where that is below EXP_MIN_NORMAL. `surface` then takes numpy's vectorised float32 exp: ~10x faster than exp in this
-    loop, which numba does not vectorise."""
+    EXP_FLOOR where that is below EXP_MIN_NORMAL. `surface` then takes numpy's vectorised float32 exp:
+    ~10x faster than exp in this loop, which numba does not vectorise."""
     for f in range(len(last_t)):
         e = np.float32((np.int64(last_t[f]) - t_now) * inv_tau)
         out[f] = e if e >= np.float32(EXP_MIN_NORMAL) else np.float32(EXP_FLOOR)
