@@ -126,6 +126,41 @@ def test_density_fifo_grows_past_its_initial_capacity():
     assert np.allclose(score[:300], ref) and (codes == 0).all()
 
 
+@pytest.mark.parametrize("far", [False, True])
+def test_density_map_widens_before_a_row_holds_more_events_than_its_cells(far):
+    """70,000 events on one pixel, all in one window: the event m counts m earlier ones, past the uint16
+    cells' 65,535 (they would wrap to m - 65,536 unless the map widens to int32 first), chunked or not."""
+    from evstream.denoise import density
+
+    n = 70_000
+    s = EventChunk.from_arrays(np.arange(n) // 8, np.full(n, 3), np.full(n, 2), np.ones(n), G)
+    saved = density.FAR_BYTES
+    density.FAR_BYTES = 0 if far else saved
+    try:
+        for bounds in ([0, n], [0, 30_000, 65_534, 65_536, n]):
+            f = DensityFilter(window_us=10**9, mode="absolute", density_hz=0.0)
+            score = np.concatenate([f.classify_scored(c)[1] for c in split(s, bounds)])
+            assert f._far == far and f._state["hsum"].dtype == np.int32
+            assert np.array_equal(np.rint(score * 25 * 1e3), np.arange(n))  # N(m) / (L² · Δt), Δt = 1000 s
+    finally:
+        density.FAR_BYTES = saved
+
+
+@given(st.integers(0, 2**32), st.integers(0, 250), density_params, st.booleans())
+def test_density_kernel_widening_its_map_matches_brute_force(seed, n, params, far):
+    """With the uint16 cells' row limit lowered to 3 events, the map widens within a call or between calls
+    at any point: every variant still matches the reference (the widened cells are the same counts)."""
+    from evstream.denoise import density
+
+    saved = density.UINT16_ROW_MAX, density.FAR_BYTES
+    density.UINT16_ROW_MAX = 3
+    density.FAR_BYTES = 0 if far else saved[1]
+    try:
+        test_density_kernel_matches_brute_force.hypothesis.inner_test(seed, n, params)
+    finally:
+        density.UINT16_ROW_MAX, density.FAR_BYTES = saved
+
+
 def test_dc_activation_fifo_grows_past_its_initial_capacity():
     # 9,000 events on 432 pixels within one window of 200 bins: ~8,000 activations held at once
     s = random_stream(2, 9_000, G, mean_dt_us=0.02)
@@ -233,13 +268,36 @@ def test_invariants(make, seed):
     assert_causal(make, s, seed)
 
 
+def test_cascade_over_far_maps_is_chunk_invariant_and_causal(monkeypatch):
+    from evstream.denoise import density
+
+    monkeypatch.setattr(density, "FAR_BYTES", 0)
+    monkeypatch.setattr(timeseries, "FAR_BYTES", 0)
+    make = lambda: PaperCascade(coarse={"window_us": 800}, fine={"rate_hz": 5000.0})  # noqa: E731
+    for seed in range(8):
+        s = random_stream(seed, 400, G)
+        assert_chunk_invariant(make, s, seed)
+        assert_causal(make, s, seed)
+    f = make()
+    f(random_stream(0, 3, G))
+    assert f.density._far
+
+
 @pytest.mark.parametrize("make", [lambda: DensityFilter(window_us=500), lambda: TimeSeriesFilter(),
                                   lambda: PaperCascade()])
 def test_state_is_bounded(make):
     assert_bounded_state(make, lambda n: random_stream(0, n, G), n=3000)
 
 
-def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept():
+@pytest.mark.parametrize("far", [False, True])
+def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept(far, monkeypatch):
+    """Over maps larger than the L2 cache (`FAR_BYTES`, here 0 when `far`) the cascade calls the two stages'
+    kernels one after the other, else its one kernel: the same classes either way."""
+    from evstream.denoise import density
+
+    if far:
+        monkeypatch.setattr(density, "FAR_BYTES", 0)
+        monkeypatch.setattr(timeseries, "FAR_BYTES", 0)
     s = random_stream(5, 3000, G)
     cascade = PaperCascade(coarse={"window_us": 1000}, fine={"rate_hz": 5000.0})
     got = classify_all(cascade, [s])
