@@ -4,6 +4,8 @@ tree under out/mutation/ (the work tree is never touched). Prints the score per 
 
     python tests/mutation.py testing codecs        # modules by name (see TARGETS); none: all of them
     python tests/mutation.py --dry codecs          # its tests against the plain kernels, unmutated
+    python tests/mutation.py --inproc framing      # one worker, CPU-time limits: verdicts the load cannot change
+    python tests/mutation.py --inproc --sample 200 codecs --only '*.evt3.*'   # a random 200 of those
 
 Numba: mutmut 3 skips every decorated function (its trampoline, applied under the function's own
 decorators, would be what numba compiles). So the copy of each mutated file has its kernels' `@njit`
@@ -22,6 +24,7 @@ import ast
 import fnmatch
 import json
 import os
+import random
 import re
 import shutil
 import subprocess
@@ -43,10 +46,11 @@ TARGETS = {
     # represent.py is left out: its tests (test_represent.py) are the representations' own module's
     "framing": ([FRAMING + f for f in ("arrays.py", "base.py", "fixed.py", "options.py", "overlap.py",
                                        "render.py", "stats.py")],
-                ["tests/test_framing.py", "tests/test_invariant_kit.py"]),
+                ["tests/test_framing.py", "tests/test_invariant_kit.py", "tests/test_framing_render_cli.py",
+                 "tests/test_represent_outputs.py"]),
     "codecs": ([CODECS + f for f in ("attachment.py", "event_packet.py", "evt2.py", "evt3.py")],
                ["tests/test_codecs_evt2.py", "tests/test_codecs_evt3.py", "tests/test_event_packet.py",
-                "tests/test_zenoh_attachment.py"]),
+                "tests/test_zenoh_attachment.py", "tests/test_seek.py"]),
     # the packet payloads: checked by the packet codec's tests (mono and EVT3 packets against references)
     # and the MCAP archive's
     "codecs_payloads": ([CODECS + "mono.py", CODECS + "packets.py"],
@@ -58,6 +62,8 @@ TARGETS = {
     "denoise_baselines": ([DENOISE + f for f in ("baf.py", "dwf.py", "hotpixel.py", "khodamoradi.py",
                                                  "oracle.py", "refractory.py", "stcf.py", "ynoise.py")],
                           ["tests/test_baselines.py"]),
+    # the two per-pixel baselines alone (the others stay compiled: their tests share test_baselines.py)
+    "denoise_per_pixel": ([DENOISE + "hotpixel.py", DENOISE + "refractory.py"], ["tests/test_baselines.py"]),
 }
 ALIASES = {"denoise": ["denoise_cascade", "denoise_baselines"]}  # and `codecs_payloads` for codecs
 IGNORE = shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc", "*.pyc")
@@ -415,6 +421,168 @@ def run(name: str, only: list[str] = (), again: bool = False) -> dict:
     return result
 
 
+# --- the in-process executor (`--inproc`): load-independent verdicts on a shared machine -------------
+# mutmut stops a mutant on wall-clock time, so on a loaded machine an equivalent mutant of a slow test
+# "times out" and counts as killed. Here mutmut only writes the mutants (its generation step); one
+# worker process then runs them one at a time: it sets MUTANT_UNDER_TEST (read by mutmut's trampoline
+# at every call) and calls pytest.main on the tests that reach the mutated function (found by a first,
+# clean run in mutmut's "stats" mode), fastest first, with -x. A mutant's time limit is CPU time
+# (ITIMER_PROF: 5 x its tests' clean CPU + 20 s), which the load does not change. A clean run (no
+# mutant) before and after must pass: it is the control that nothing one mutant did leaked into the
+# next. A worker that dies (a mutant crashing a compiled kernel) is restarted after that mutant, which
+# counts as killed ('crash'). Verdicts go to out/mutation/MODULE/inproc.json, one line per mutant, and
+# a resumed run skips those already there.
+
+def generate(ws: Path) -> list[str]:
+    """mutmut's own mutants of the copy in `ws` (its generation step only), by name."""
+    if not (ws / "mutants.done").is_file():  # none yet, or a generation cut short
+        shutil.rmtree(ws / "mutants", ignore_errors=True)
+        code = ("import os; os.environ['MUTANT_UNDER_TEST'] = 'mutant_generation'\n"
+                "from mutmut.__main__ import copy_src_dir, copy_also_copy_files, create_mutants\n"
+                "copy_src_dir(); copy_also_copy_files(); create_mutants(2)\n")
+        subprocess.run([sys.executable, "-c", code], cwd=ws, check=True, stdout=subprocess.DEVNULL)
+        (ws / "mutants.done").touch()
+    names = []
+    for meta in sorted((ws / "mutants").rglob("*.py.meta")):
+        names += json.loads(meta.read_text())["exit_code_by_key"]
+    return names
+
+
+def _verdicts(path: Path) -> dict[str, dict]:
+    if not path.is_file():
+        return {}
+    return {v["mutant"]: v for v in map(json.loads, path.read_text().splitlines()) if v.get("mutant")}
+
+
+def inproc(name: str, only: list[str] = (), again: bool = False, sample: int = 0) -> dict:
+    """Run module `name`'s mutants (those matching `only`, if given; a random `sample` of them, the same
+    for the same mutants) in-process; the score as `run`'s, over the mutants run."""
+    ws = _copy(name, OUT / name, TARGETS[name][1])
+    if (ws / "mutants").is_dir():  # a resumed copy: the tests as they are now
+        shutil.copytree(ROOT / "tests", ws / "mutants" / "tests", dirs_exist_ok=True, ignore=IGNORE)
+    names = generate(ws)
+    if only:  # in the order of the globs: the first given run first
+        names = [m for g in only for m in names if fnmatch.fnmatchcase(m, g)]
+        names = list(dict.fromkeys(names))
+    if sample and sample < len(names):  # an unbiased estimate of the score when all would take too long
+        names = sorted(random.Random(0).sample(names, sample), key=names.index)
+    path = ws / "inproc.json"
+    if again:
+        kept = {m: v for m, v in _verdicts(path).items() if m not in names}
+        path.write_text("".join(json.dumps(v) + "\n" for v in kept.values()))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(ws / ".numba_cache_inproc"), PYTHONHASHSEED="0",
+               HYPOTHESIS_PROFILE=os.environ.get("HYPOTHESIS_PROFILE", "mutation"))
+    env.pop("NUMBA_DISABLE_JIT", None)
+    shutil.rmtree(ws / ".numba_cache_inproc", ignore_errors=True)
+    while True:
+        todo = [m for m in names if m not in _verdicts(path)]
+        if not todo:
+            break
+        (ws / "inproc.todo").write_text("\n".join(todo))
+        r = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--worker", name], cwd=ws / "mutants",
+                           env=env)
+        if r.returncode == 0:
+            break
+        running = (ws / "inproc.running").read_text().strip() if (ws / "inproc.running").is_file() else ""
+        if r.returncode > 0 or not running:  # a failed control run or set-up: nothing to resume
+            raise SystemExit(f"{name}: the in-process worker failed (exit {r.returncode}); see {path}")
+        with open(path, "a") as out:  # the worker died on this mutant (a signal): a crash kills it
+            out.write(json.dumps({"mutant": running, "status": "crash", "exit": r.returncode}) + "\n")
+    status = {m: v["status"] for m, v in _verdicts(path).items() if m in names}
+    status = {m: {"crash": "killed"}.get(s, s) for m, s in status.items()}
+    result = score(status)
+    (ws / "score-inproc.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+class _Timeout(Exception):
+    pass
+
+
+def worker(name: str) -> int:
+    """One process, cwd the copy's mutants/: a clean run (mapping tests to the functions they reach),
+    each mutant of inproc.todo in turn, a clean run again. Exit 1 if a clean run fails."""
+    import resource
+    import signal
+    import time
+
+    import mutmut.mutation.trampoline as trampoline
+    import pytest
+
+    sys.path[0] = os.getcwd()  # the copy's evstream and tests, not those beside this script
+    ws = Path.cwd().parent
+    hits: set[str] = set()
+    trampoline.record_trampoline_hit = lambda fn, caller=None: hits.add(fn)
+    timed_out = []
+
+    def on_alarm(signum, frame):
+        timed_out.append(True)
+        raise _Timeout("CPU time limit")
+
+    signal.signal(signal.SIGPROF, on_alarm)
+
+    def cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    class Record:
+        def __init__(self):
+            self.cpu, self.reach, self.failed = {}, {}, []
+
+        @pytest.hookimpl(hookwrapper=True)
+        def pytest_runtest_protocol(self, item, nextitem):
+            hits.clear()
+            t0 = cpu()
+            yield
+            self.cpu[item.nodeid] = cpu() - t0
+            for fn in hits:
+                self.reach.setdefault(fn, []).append(item.nodeid)
+
+        def pytest_runtest_logreport(self, report):
+            if report.failed:
+                self.failed.append(report.nodeid)
+
+    args = ["--rootdir=.", "--tb=line", "-q", "-p", "no:cacheprovider", "-p", "no:randomly"]
+
+    def clean(tag: str) -> Record:
+        rec = Record()
+        os.environ["MUTANT_UNDER_TEST"] = "stats"
+        code = pytest.main(args + TARGETS[name][1], plugins=[rec])
+        os.environ["MUTANT_UNDER_TEST"] = ""
+        if code != 0:
+            print(f"{name}: the clean run {tag} failed ({rec.failed})", file=sys.stderr)
+            raise SystemExit(1)
+        return rec
+
+    base = clean("before the mutants")
+    with open(ws / "inproc.json", "a") as out:
+        for mutant in (ws / "inproc.todo").read_text().split():
+            fn = mutant.partition("__mutmut_")[0]
+            tests = sorted(base.reach.get(fn) or base.cpu, key=base.cpu.get)
+            limit = 5 * sum(base.cpu[t] for t in tests) + 20
+            (ws / "inproc.running").write_text(mutant)
+            rec, timed_out[:] = Record(), []
+            os.environ["MUTANT_UNDER_TEST"] = mutant
+            t0 = cpu()
+            signal.setitimer(signal.ITIMER_PROF, limit)
+            try:
+                code = pytest.main(args + ["-x"] + tests, plugins=[rec])
+            except _Timeout:
+                code = -1
+            finally:
+                signal.setitimer(signal.ITIMER_PROF, 0)
+                os.environ["MUTANT_UNDER_TEST"] = ""
+            status = ("timeout" if timed_out else "survived" if code == 0 else "killed" if code == 1
+                      else f"error {code}")
+            out.write(json.dumps({"mutant": mutant, "status": status, "tests": len(tests),
+                                  "reached": fn in base.reach, "failed": rec.failed[:1],
+                                  "cpu_s": round(cpu() - t0, 2), "at": time.strftime("%H:%M:%S")}) + "\n")
+            out.flush()
+    (ws / "inproc.running").write_text("")
+    clean("after the mutants")
+    return 0
+
+
 def dry(name: str) -> int:
     """The module's tests against its plain-Python kernels, unmutated: they must pass (and show how
     long mutmut's first, whole-selection run takes)."""
@@ -427,16 +595,23 @@ def dry(name: str) -> int:
 
 
 def main(argv: list[str]) -> int:
+    if argv[:1] == ["--worker"]:
+        return worker(argv[1])
     if argv[:1] == ["--dry"]:
         return max(dry(n) for n in argv[1:])
-    only, again = [], "--again" in argv
-    argv = [a for a in argv if a != "--again"]
+    only, again, by_hand = [], "--again" in argv, "--inproc" in argv
+    argv = [a for a in argv if a not in ("--again", "--inproc")]
+    sample = 0
+    if "--sample" in argv:  # python tests/mutation.py --inproc --sample 150 framing [--only ...]
+        i = argv.index("--sample")
+        sample = int(argv[i + 1])
+        argv = argv[:i] + argv[i + 2:]
     if "--only" in argv:  # python tests/mutation.py codecs --only '*.x__decode_kernel__*' ... [--again]
         only = argv[argv.index("--only") + 1:]
         argv = argv[:argv.index("--only")]
     names = [n for a in (argv or list(TARGETS)) for n in ALIASES.get(a, [a])]
     for name in names:
-        r = run(name, only, again)
+        r = inproc(name, only, again, sample) if by_hand else run(name, only, again)
         c = r["counts"]
         pct = "n/a" if r["score"] is None else f"{100 * r['score']:.1f} %"
         print(f"{name}: {pct} killed ({c.get('killed', 0)} killed, {c.get('timeout', 0)} timeout, "
