@@ -759,12 +759,12 @@ class TimeSurface(RepresentationFramer):
     counted event), then the rest of the chunk is applied. That is exact: a window emitted by a later
     push ends after every event of this chunk (it would have closed on this chunk's watermark
     otherwise), and an open fixed-count window holds every counted event after the emitted ones.
-    Over fixed time and fixed-count windows it counts the frames' events too, in the same pass (the
-    windowing framer leaves them to it: `FixedWindow.follower`, `FixedCount.follower`)."""
+    Over fixed time windows it counts the frames' events too, in the same pass (the windowing framer leaves
+    them to it: `FixedWindow.follower`; over fixed-count windows that measured ~3 % slower than letting
+    the framer count, as it does)."""
 
     tau_us: float = 50_000.0
     needs_events: ClassVar[bool] = False
-    counts_fn: ClassVar[bool] = True
 
     def __post_init__(self):
         tau = self.tau_us
@@ -780,7 +780,7 @@ class TimeSurface(RepresentationFramer):
         super()._reset()
         if self.window == "fw":
             self.inner.follower = self  # `add` below: the counts are left to `_surfaces`
-        self._counting = self.window in ("fw", "fn")  # `_apply` counts the frames' events
+        self._counting = self.window == "fw"  # `_apply` counts the frames' events
         self._last_t = None
         self._counted = 0  # counted events in the chunks before this one
         self._emitted = 0  # fn: counted events in the windows emitted so far
