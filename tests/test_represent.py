@@ -440,26 +440,31 @@ def test_voxel_and_counts_of_a_fixed_count_window_match_plain_python(seed, n, bi
 @given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.booleans(), st.integers(1, 40), st.integers(1, 400))
 def test_fn_scan_finds_the_windows_of_plain_python(seed, n, use_cls, n_target, max_window):
     """Fixed-count windows whose representation counts their events: the framer only finds the windows
-    (`fn_scan`): fill a frame of n_target from index a, or time out max_window after its first event."""
+    (`fn_scan`): fill a frame of n_target from index a, or time out max_window after its first event; the
+    frame empty at a, or already holding some events (the first of them at first_t)."""
     rng = np.random.default_rng(seed)
     t, _, _, _, cls = random_events(rng, n, 4, 3)
     a = int(rng.integers(0, n + 1))
-    i, have, first, last, status = fn_scan(t, cls, use_cls, a, 0, n_target, 0, 0, max_window)
-    j, members, want = a, [], FN_DONE
+    have0 = int(rng.integers(0, n_target)) if rng.random() < 0.5 else 0
+    first0 = int(t[a]) - int(rng.integers(0, max_window + 5)) if have0 and a < n else 0
+    last0 = first0
+    i, have, first, last, status = fn_scan(t, cls, use_cls, a, have0, n_target, first0, last0, max_window)
+    j, have_want, first_want, last_want, want = a, have0, first0, last0, FN_DONE
     while j < n:
-        if members and t[j] >= t[members[0]] + max_window:
+        if have_want and t[j] >= first_want + max_window:
             want = FN_TIMEOUT
             break
         if not use_cls or cls[j] == 0:
-            members.append(j)
-            if len(members) == n_target:
+            if not have_want:
+                first_want = int(t[j])
+            have_want += 1
+            last_want = int(t[j])
+            if have_want == n_target:
                 j += 1
                 want = FN_FULL
                 break
         j += 1
-    assert (i, have, status) == (j, len(members), want)
-    if members:
-        assert (first, last) == (t[members[0]], t[members[-1]])
+    assert (i, have, status, first, last) == (j, have_want, want, first_want, last_want)
 
 
 @given(st.integers(0, 2**32 - 1), st.integers(0, 2**33))

@@ -79,8 +79,25 @@ def fn_run(t, x, y, p, cls, use_cls, i, counts, width, hw, n_have, n_target, fir
 @njit(cache=True, nogil=True)
 def fn_scan(t, cls, use_cls, i, n_have, n_target, first_t, last_t, max_window_us):
     """`fn_run` without the counts (for a follower that counts the frame's events itself): the same
-    windows, reading only times and classes."""
+    windows, reading only times and classes; when every event counts, by arithmetic and one binary search
+    for the deadline instead of a look at each event."""
     n = len(t)
+    if not use_cls and i < n:
+        if n_have == 0:  # the frame's first event: no deadline before it
+            first_t = last_t = t[ix(i)]
+            n_have = 1
+            i += 1
+            if n_have == n_target:
+                return i, n_have, first_t, last_t, FN_FULL
+        late = i + np.searchsorted(t[i:], first_t + max_window_us)  # the first event at or past the deadline
+        full = i + n_target - n_have  # just past the n_target-th event
+        stop = min(late, full)  # late <= n
+        if stop > i:
+            n_have += stop - i
+            last_t = t[ix(stop - 1)]
+        if stop == full:
+            return stop, n_have, first_t, last_t, FN_FULL
+        return stop, n_have, first_t, last_t, FN_TIMEOUT if stop == late < n else FN_DONE
     while i < n:
         j = ix(i)
         ti = t[j]
