@@ -23,6 +23,7 @@ import importlib.machinery
 import importlib.util
 import json
 import os
+import signal
 import threading
 import weakref
 from pathlib import Path
@@ -208,7 +209,47 @@ def _numba():
             cpu_target.typing_context.refresh()  # installs the intrinsic's typing template
             return cpu_target.typing_context.resolve_value_type(real)
 
+        from numba.core.compiler_lock import global_compiler_lock
+
+        hold_ctrl_c_while_compiling(global_compiler_lock)
         return numba
+
+
+def hold_ctrl_c_while_compiling(lock) -> None:
+    """While the main thread holds numba's compiler lock, a SIGINT's Python handler waits until the outermost
+    compile has released it. A KeyboardInterrupt raised inside the compiler could leave llvmlite owning a
+    module LLVM had already freed (after `LLVMPY_LinkModules`, before `detach`: `free(): double free` at
+    exit, 1 in ~25 interrupted `eval`s), or land in a ctypes callback that drops it (the command ran on).
+    Other threads' compiles are not interrupted by a Python handler (it runs in the main thread)."""
+    acquire, release = lock.acquire, lock.release
+    held = {"depth": 0, "handler": None, "signum": None}
+
+    def wait(signum, frame):
+        held["signum"] = signum
+
+    def acquire_held():
+        acquire()
+        if threading.current_thread() is threading.main_thread():
+            held["depth"] += 1
+            if held["depth"] == 1 and callable(handler := signal.getsignal(signal.SIGINT)):
+                held["handler"], held["signum"] = handler, None
+                signal.signal(signal.SIGINT, wait)
+
+    def release_held():
+        handler = None
+        if threading.current_thread() is threading.main_thread() and held["depth"]:
+            held["depth"] -= 1
+            if held["depth"] == 0:
+                handler, held["handler"] = held["handler"], None
+        release()
+        if handler is not None:
+            if signal.getsignal(signal.SIGINT) is wait:  # not replaced meanwhile
+                signal.signal(signal.SIGINT, handler)
+            if held["signum"] is not None:
+                signum, held["signum"] = held["signum"], None
+                handler(signum, None)  # KeyboardInterrupt now, outside the compiler
+
+    lock.acquire, lock.release = acquire_held, release_held
 
 
 def kernel_key(py_func) -> str | None:
