@@ -291,8 +291,8 @@ def test_state_is_bounded(make):
 
 @pytest.mark.parametrize("far", [False, True])
 def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept(far, monkeypatch):
-    """Over maps larger than the L2 cache (`FAR_BYTES`, here 0 when `far`) the cascade calls the two stages'
-    kernels one after the other, else its one kernel: the same classes either way."""
+    """Over maps larger than the L2 cache (`FAR_BYTES`, here 0 when `far`) too, the cascade's one kernel
+    (its stages' prefetching variants) gives the stages' classes one after the other."""
     from evstream.denoise import density
 
     if far:

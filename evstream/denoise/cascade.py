@@ -107,13 +107,9 @@ class PaperCascade:
 
     def _both(self, chunk: EventChunk, codes: np.ndarray, all_live: bool) -> None:
         """Both stages over `chunk` (at most `block_events` long) in one kernel call, more when a stage
-        needs room; over maps larger than the L2 cache, each stage's own call (measured faster there)."""
+        needs room."""
         coarse, fine = self._stages
         coarse._ready(chunk)
-        if coarse._far:  # at 1280×720 the one kernel measured 1–3 ns/event slower than the two
-            coarse._run(chunk, codes, False, all_live)
-            fine._run(chunk, codes, False)
-            return
         fine._ready(chunk, len(chunk))
         progress = np.zeros(2, np.int64)
         while True:
