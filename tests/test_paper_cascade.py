@@ -161,6 +161,23 @@ def test_density_kernel_widening_its_map_matches_brute_force(seed, n, params, fa
         density.UINT16_ROW_MAX, density.FAR_BYTES = saved
 
 
+@pytest.mark.parametrize("record", [1, 2])
+@pytest.mark.parametrize("head, size", [(0, 0), (0, 8), (5, 8), (7, 8), (3, 5), (6, 2)])
+def test_grow_fifo_unrolls_a_wrapped_ring_from_its_head(head, size, record):
+    from evstream.denoise.base import grow_fifo
+
+    cap = 8
+    ring = np.arange(100, 100 + cap * record, dtype=np.int64)
+    state = {"a": ring.copy(), "b": ring.astype(np.uint16), "fifo_state": np.array([head, size, 9])}
+    grow_fifo(state, ("a", "b"), record=record)
+    slots = [(head + k) % cap for k in range(size)]
+    want = [int(ring[q * record + c]) for q in slots for c in range(record)]
+    for k in ("a", "b"):
+        assert len(state[k]) == 2 * cap * record and state[k].dtype == (np.int64 if k == "a" else np.uint16)
+        assert state[k][: size * record].tolist() == want and not state[k][size * record :].any()
+    assert state["fifo_state"].tolist() == [0, size, 9]
+
+
 def test_dc_activation_fifo_grows_past_its_initial_capacity():
     # 9,000 events on 432 pixels within one window of 200 bins: ~8,000 activations held at once
     s = random_stream(2, 9_000, G, mean_dt_us=0.02)

@@ -13,12 +13,13 @@ def grow_fifo(state: dict, keys: tuple[str, ...], state_key: str = "fifo_state",
     """Double the FIFO rings `state[k]` a kernel fills (it returns early when they are full), unrolling
     them so that the head is at 0; `state[state_key]` starts with [head, size], both counted in records
     of `record` consecutive cells (a ring of (time, entry) pairs: 2)."""
-    head, size = state[state_key][:2]
+    head, size = (int(v) for v in state[state_key][:2])
     cap = len(state[keys[0]]) // record
-    order = (head + np.arange(size)) % cap
+    first = min(size, cap - head)  # from the head to the ring's end, then the rest from its start
     for k in keys:
-        new = np.zeros(2 * cap * record, state[k].dtype)
-        new[: size * record] = state[k].reshape(cap, record)[order].reshape(-1)
+        old, new = state[k], np.zeros(2 * cap * record, state[k].dtype)
+        new[: first * record] = old[head * record : (head + first) * record]  # two copies: a gather
+        new[first * record : size * record] = old[: (size - first) * record]  # by index took ~0.4 ms a grow
         state[k] = new
     state[state_key][:2] = (0, size)
 
