@@ -32,7 +32,7 @@ from ..events import EventChunk, NoiseClass, shown
 from ..jit import bind, njit
 from ..nowrap import ix
 from ..pipeline import register
-from .base import InPlaceClassifier, grow_fifo
+from .base import InPlaceClassifier, fifo_capacity, grow_fifo
 from .common import is_int
 from .prefetch import FAR_BYTES, prefetch
 from .rowsum import MAX_RADIUS_PX, column_sum, padded_map, row_add
@@ -207,7 +207,7 @@ class TimeSeriesFilter(InPlaceClassifier):
 
     def _init(self, g) -> dict:
         r = self.radius_px
-        cap = 1 << 12
+        cap = fifo_capacity(g.n_pixels // 4)  # their 64 bins ~n_pixels / 4 activations
         return {"geometry": g, "pixel": padded_map(g.width, g.height, r, np.uint16),
                 "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
                 "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(5, np.int64),
