@@ -171,8 +171,8 @@ def main() -> None:
     ap.add_argument("--families", default="", help="score only these families' recordings (comma-separated, "
                     "e.g. DVS128,DVXplorer,ATIS: the real ones; the size tests are synthetic)")
     ap.add_argument("--only", default="", help="test groups to run (comma-separated; default all)")
-    ap.add_argument("--per-recording", action="store_true", help="also print each recording's EDP: the best "
-                    "rule's and each recipe's")
+    ap.add_argument("--per-recording", action="store_true", help="also print each recording's EDP (the best "
+                    "rule's and each recipe's) and the signal each recipe keeps there (fixed / stream threshold)")
     a = ap.parse_args()
     recipes = a.recipe.split(",")
     recs = load_recordings()
@@ -213,7 +213,9 @@ def main() -> None:
             for (rec, _, _, _), row in zip(items, rows, strict=True):
                 rule = max(RULES, key=lambda m, row=row: row[m]["edp80"])
                 print(f"{'':<11}  {rec[:40]:<40}{rule:>10} {row[rule]['edp80']:5.1f}"
-                      + "".join(f"{row[r]['edp80']:11.1f}" for r in recipes), flush=True)
+                      + "".join(f"{row[r]['edp80']:11.1f}" for r in recipes)
+                      + "".join(f"   kept {100 * row[r]['kept_fixed']:3.0f} / {100 * row[r]['kept_stream']:3.0f}"
+                                for r in recipes), flush=True)
 
 
 if __name__ == "__main__":
