@@ -561,3 +561,30 @@ def test_a_pipeline_file_that_is_not_there_or_a_folder_is_one_line_naming_it(tmp
         assert rc == 1
         assert one_line_error(err) == f"evstream: error: {given}: {why}"
     assert not (tmp_path / "x.rrd").exists()
+
+
+CTRL_C_WHILE_THE_FLAGS_ARE_READ = """
+import argparse, signal, sys
+sys.argv[0] = "evstream"  # as the console script: evstream/_start.py guards the start-up
+from evstream.cli import main
+
+add_argument = argparse.ArgumentParser.add_argument
+
+
+def add_argument_then_ctrl_c(self, *args, **kwargs):  # the terminal's Ctrl-C while the flags are set up
+    if args[:1] == ("--start-us",):
+        signal.raise_signal(signal.SIGINT)
+    return add_argument(self, *args, **kwargs)
+
+
+argparse.ArgumentParser.add_argument = add_argument_then_ctrl_c
+sys.exit(main(["info", sys.argv[1]]))
+"""
+
+
+def test_ctrl_c_while_the_command_reads_its_flags_is_one_line(tmp_path):
+    """Seen 2 in 80 Ctrl-Cs at random moments: the parser is built (its modules load) after start-up's guard
+    was released and before the command's own handling, so Python's traceback and exit -2."""
+    out = subprocess.run([sys.executable, "-c", CTRL_C_WHILE_THE_FLAGS_ARE_READ, SHIPPED], capture_output=True,
+                         text=True, cwd=tmp_path, timeout=120)
+    assert (out.returncode, out.stderr, out.stdout) == (130, "evstream: interrupted\n", "")

@@ -55,9 +55,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def main(argv=None) -> int:
-    _start.release()  # loaded: Ctrl-C is KeyboardInterrupt again (or the command's own handler)
-    ap = parser()
+    ap = parser()  # imports the commands' modules: Ctrl-C is still start-up's one line (evstream/_start.py)
     args = ap.parse_args(argv)  # exits 2 on usage errors
+    _start.release()  # loaded: Ctrl-C is KeyboardInterrupt again (or the command's own handler)
     with warnings.catch_warnings():  # restores the caller's warning display afterwards
         if not args.debug:
             warnings.showwarning = _show_warning
