@@ -472,3 +472,28 @@ def test_a_bad_pipeline_or_model_file_is_one_error_before_the_cluster_starts(dat
         assert rc == 1 and out == "" and len(err.splitlines()) == 1, err
         assert err.startswith(f"evstream: error: {tmp_path / said.split(':')[0]}:") and said in err, err
         assert not (tmp_path / "out").exists()
+
+
+def test_one_recording_into_a_folder_named_like_a_file_or_beside_a_namesake_says_where_it_went(client, dataset,
+                                                                                                  tmp_path, capsys):
+    """Session 9's audit: `archive w/bar.npz OUT` wrote OUT/bar.npz.mcap (w/ also holds bar.raw) and
+    `archive bar.npz d.mcap` with a folder d.mcap wrote d.mcap/bar.mcap; the table said neither."""
+    w = tmp_path / "w"
+    w.mkdir()
+    shutil.copy(dataset / "bar.npz", w / "bar.npz")
+    assert main(["convert", str(w / "bar.npz"), str(w / "bar.raw"), "--end-us", "20000", "--quiet"]) == 0
+    out = tmp_path / "d.mcap"
+    out.mkdir()
+    argv = ["archive", str(w / "bar.npz"), str(out), "--end-us", "20000", "--quiet",
+            "--scheduler", client.scheduler.address]
+    capsys.readouterr()
+    assert main(argv) == 0
+    said = capsys.readouterr()
+    assert (out / "bar.npz.mcap").is_file()
+    assert f"named: {w / 'bar.npz'} -> {out / 'bar.npz.mcap'}: a recording beside another of the same name " \
+           "keeps its extension in its output's name" in said.out.splitlines()
+    assert said.err == (f"evstream: note: {out} is a folder: the output goes into it (the many-recordings form); "
+                        f"to write the file {out}, move the folder away\n")
+    assert main([*argv[:2], str(tmp_path / "e.mcap") + "/", *argv[3:]]) == 0  # a folder asked for: no note
+    said = capsys.readouterr()
+    assert said.err == "" and "named: " in said.out

@@ -10,6 +10,7 @@ import signal
 import sys
 import tempfile
 from collections.abc import Callable
+from pathlib import Path
 
 from .. import batch
 from .common import Progress, StopOnSignal, UsageError
@@ -38,6 +39,9 @@ def many(sources: list[str], out: str, one_file_suffixes: tuple[str, ...]) -> bo
     or has no extension). Several sources into a file name is a usage error; one source into a file name
     is the one-file form, exactly as it always was (a folder there is its one-line error)."""
     folder = out.endswith(("/", os.sep)) or os.path.isdir(out) or not os.path.splitext(out.rstrip("/"))[1]
+    if folder and len(sources) == 1 and out.lower().endswith(one_file_suffixes) and os.path.isdir(out):
+        print(f"evstream: note: {out} is a folder: the output goes into it (the many-recordings form); to write "
+              f"the file {out}, move the folder away", file=sys.stderr)
     if folder:
         return True
     if len(sources) > 1:  # one source into a file name keeps the one-file errors ("DIR: is a directory")
@@ -173,6 +177,10 @@ def table(results: list[batch.TaskResult]) -> str:
         elif r.status == "skipped" and r.note:
             lines.append(f"skipped: {r.source}: {r.note}")
     done = [r for r in results if r.status == "done"]
+    kept = [r for r in done if Path(r.out).name.startswith(Path(r.source).name + ".")]  # batch.out_name
+    if kept:
+        lines.append(f"named: {kept[0].source} -> {kept[0].out}{f' and {len(kept) - 1} more' if len(kept) > 1 else ''}"
+                     ": a recording beside another of the same name keeps its extension in its output's name")
     stopped = sum(r.status == "interrupted" for r in results)
     redone = sum(bool(r.redone) for r in done)
     lines.append(f"{len(done)} done{f' ({redone} redone)' if redone else ''}, "
