@@ -267,11 +267,15 @@ def test_mono_encode_takes_each_field_to_its_limit_and_not_past_it():
     for t in ([t_us], np.array([t_us], np.int32), np.array([t_us], np.uint32)):
         data = mono.encode(t, [65535], [0x7FFF], [1], widest)
         assert data == _mono_words([(mono.MAX_SPAN_NS, 65535, 0x7FFF, 1)], "little")
-    for t, y, p in (([2, 3, 0], [5, 5, 5], [0, 1, 0]), ([2, 3, 4], [5, 5, 0x8000], [0, 1, 0]),
-                    ([2, 3, 4], [5, 5, 5], [0, 1, 2])):  # event 2 before the time base, too low, of no polarity
-        with pytest.raises(ValueError, match=rf"^mono.encode: event 2 \(t={t[2]} µs, y={y[2]}, p={p[2]}\) cannot be "
-                                             r"written with time_base 1000 ns: dt must be 0..2\^32-1 ns"):
-            mono.encode(t, [4, 4, 4], y, p, 1000)
+    for t, x, y, p in (([2, 3, 0], [4, 4, 4], [5, 5, 5], [0, 1, 0]), ([2, 3, 4], [4, 4, 4], [5, 5, 0x8000], [0, 1, 0]),
+                       ([2, 3, 4], [4, 4, 4], [5, 5, 5], [0, 1, 2]),  # event 2 before the time base, too low, of no polarity
+                       ([2, 3, 4], [4, 4, 65536], [5, 5, 5], [0, 1, 0]),  # x spilled into y's bits (session 9)
+                       ([2, 3, 4], [4, 4, -1], [5, 5, 5], [0, 1, 0]), ([2, 3, 4], [4, 4, 4], [5, 5, -1], [0, 1, 0]),
+                       ([2, 3, 4], [4, 4, 4], [5, 5, 5], [0, 1, -1])):  # negatives filled every field above them
+        with pytest.raises(ValueError, match=rf"^mono.encode: event 2 \(t={t[2]} µs, x={x[2]}, y={y[2]}, p={p[2]}\) "
+                                             r"cannot be written with time_base 1000 ns: dt must be 0..2\^32-1 ns, "
+                                             r"x < 65536, y < 32768, p 0 or 1$"):
+            mono.encode(t, np.array(x, np.int64), np.array(y, np.int64), np.array(p, np.int64), 1000)
     with pytest.raises(ValueError, match="dt must be"):
         mono.encode([1], [1], [1], [1], 1001)  # before the time base
     with pytest.raises(ValueError, match=r"^mono.encode: arrays differ in length \(t 2, x 2, y 1, p 2\)$"):

@@ -36,12 +36,12 @@ def encode(t, x, y, p, time_base_ns: int) -> bytes:
     if n == 0:
         return b""
     dt = t * _NS_PER_US - np.int64(time_base_ns)
-    bad = (dt < 0) | (dt > MAX_SPAN_NS) | (y > 0x7FFF) | (p > 1)
-    if bad.any():
+    bad = (dt < 0) | (dt > MAX_SPAN_NS) | (x < 0) | (x > 0xFFFF) | (y < 0) | (y > 0x7FFF) | (p < 0) | (p > 1)
+    if bad.any():  # (an x past 65535 or a negative field would spill into the bits above it)
         i = int(np.argmax(bad))
         raise ValueError(
-            f"mono.encode: event {i} (t={t[i]} µs, y={y[i]}, p={p[i]}) cannot be written with time_base "
-            f"{time_base_ns} ns: dt must be 0..2^32-1 ns, y < 32768, p 0 or 1"
+            f"mono.encode: event {i} (t={t[i]} µs, x={x[i]}, y={y[i]}, p={p[i]}) cannot be written with time_base "
+            f"{time_base_ns} ns: dt must be 0..2^32-1 ns, x < 65536, y < 32768, p 0 or 1"
         )
     words = (dt.astype(np.uint64) | (x.astype(np.uint64) << np.uint64(32))
              | (y.astype(np.uint64) << np.uint64(48)) | (p.astype(np.uint64) << np.uint64(63)))
