@@ -268,7 +268,7 @@ def test_mono_encode_takes_each_field_to_its_limit_and_not_past_it():
         data = mono.encode(t, [65535], [0x7FFF], [1], widest)
         assert data == _mono_words([(mono.MAX_SPAN_NS, 65535, 0x7FFF, 1)], "little")
     for t, x, y, p in (([2, 3, 0], [4, 4, 4], [5, 5, 5], [0, 1, 0]), ([2, 3, 4], [4, 4, 4], [5, 5, 0x8000], [0, 1, 0]),
-                       ([2, 3, 4], [4, 4, 4], [5, 5, 5], [0, 1, 2]),  # event 2 before the time base, too low, of no polarity
+                       ([2, 3, 4], [4, 4, 4], [5, 5, 5], [0, 1, 2]),  # event 2 before the base, too low, no polarity
                        ([2, 3, 4], [4, 4, 65536], [5, 5, 5], [0, 1, 0]),  # x spilled into y's bits (session 9)
                        ([2, 3, 4], [4, 4, -1], [5, 5, 5], [0, 1, 0]), ([2, 3, 4], [4, 4, 4], [5, 5, -1], [0, 1, 0]),
                        ([2, 3, 4], [4, 4, 4], [5, 5, 5], [0, 1, -1])):  # negatives filled every field above them
