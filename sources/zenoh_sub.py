@@ -313,10 +313,10 @@ class ZenohSubscription:
         if len(t):  # one pass over the events (numpy took five, a diff array among them)
             bad, back = first_invalid(chunk.t, chunk.x, chunk.y, chunk.p, geometry.width, geometry.height,
                                       NO_TIME if last_t is None else last_t)
+            if back >= 0:  # before the first off-sensor event (first_invalid stops there): named first
+                return self._malformed(st, key, "event time goes back")
             if bad >= 0:  # (the decoders give polarities 0 and 1 only: what is bad is a coordinate)
                 return self._malformed(st, key, f"event outside the {geometry} sensor")
-            if back >= 0:
-                return self._malformed(st, key, "event time goes back")
             last_t = int(t[-1])
         # accepted: now the sequence, the decoder and the counters move on
         self._track_seq(st, seq)

@@ -818,3 +818,26 @@ def test_a_packet_whose_events_go_back_or_leave_the_sensor_is_malformed_and_chan
     assert st.malformed == 3 and st.packets == 2 and st.events == 2 * n
     assert st.restarts == 0 and st.gaps == 0 and st.last_seq == 1 and st.last_t == int(later[-1])
     assert np.array_equal(got[-1].chunk.t, later)
+
+
+def test_a_packet_whose_time_goes_back_before_an_event_leaves_the_sensor_is_named_by_the_first(tmp_path):
+    """Session 9's audit: the off-sensor event was named even when the time going back came first."""
+    from evstream.sources.zenoh_sub import ZenohSubscription
+
+    port = free_port()
+    said: list[str] = []
+    pub_session = open_session(listen=[f"tcp/127.0.0.1:{port}"])
+    try:
+        t = np.array([10, 20, 15, 30, 40], np.int64)  # event 2 goes back in time, event 4 is off the 8x8 sensor
+        x = np.array([1, 1, 1, 1, 9], np.uint16)
+        packet = encode_packet(to_packet(t, x, np.ones(5, np.uint16), np.zeros(5, np.uint8), width=8, height=8,
+                                         encoding="mono"))
+        with ZenohSubscription("evstream/cam/events", connect=[f"tcp/127.0.0.1:{port}"], idle_s=20,
+                               should_stop=lambda: bool(said), warn=said.append) as sub:
+            pub = matched_publisher(pub_session, "evstream/cam/events")
+            pub.put(packet, attachment=encode_attachment(0, time.time_ns()))
+            drain(pub_session)
+            assert not [item for item in sub if getattr(item, "chunk", None) is not None]
+    finally:
+        pub_session.close()
+    assert said == ["evstream/cam/events: malformed packet skipped: event time goes back"]
