@@ -5,11 +5,11 @@ without numba (evstream.jit).
 
 Which kernels, for which argument types: those the commands call on small synthetic recordings — `archive
 --denoise paper` of a .raw and a .npz, `replay --denoise paper --save`, `replay --framer fw --save`
-(`make demo`), `convert` both ways; `archive` of an EVT2 .raw of a 640x480 sensor (the kernels'
-variants for maps larger than the L2 cache, `far`, which every sensor from 640x480 up uses), of a DAT
-and an N-MNIST file, `archive --denoise learned`, `convert --evt 2` — run here under numba's JIT; each
-(kernel, closure values, argument types) seen from Python is exported with numba.pycc, for this
-machine's CPU (as the JIT compiles), releasing the GIL as `nogil` kernels do. The
+(`make demo`; of a small .npz too: its columns are read-only views), `convert` both ways; `archive` of an
+EVT2 .raw of a 640x480 sensor (the kernels' variants for maps larger than the L2 cache, `far`, which every
+sensor from 640x480 up uses), of a DAT and an N-MNIST file, `archive --denoise learned`, `convert --evt 2` —
+run here under numba's JIT; each (kernel, closure values, argument types) seen from Python is exported with
+numba.pycc, for this machine's CPU (as the JIT compiles), releasing the GIL as `nogil` kernels do. The
 index `evstream/_aot.json` maps kernel keys and argument types to the module's functions and records the
 size and time of every source file: after an edit the module is ignored (numba compiles, as without
 it) until this is run again. Other kernels, options or types are compiled by numba as before.
@@ -39,6 +39,7 @@ COMMANDS = (
     ["convert", "{raw}", "{out}/c.raw", "-q"],
     ["convert", "{npz}", "{out}/d.raw", "-q"],
     ["replay", "{npz}", "--framer", "fw", "--save", "{out}/f.rrd", "-q"],  # make demo, README's first command
+    ["replay", "{small}", "--framer", "fw", "--save", "{out}/u.rrd", "-q"],  # in one block: not writeable
     ["archive", "{vga_evt2}", "{out}/g.mcap", "--denoise", "paper", "-q"],  # EVT2; 640x480 and up: `far` kernels
     ["replay", "{vga_evt2}", "--denoise", "paper", "--save", "{out}/h.rrd", "-q"],
     ["archive", "{dat}", "{out}/i.mcap", "--denoise", "paper", "-q"],

@@ -82,7 +82,7 @@ def _input_path(given) -> str | None:
 
 
 def _rerun(name: str, geometry, framer, options, inputs=()) -> SinkWriter:
-    from evstream.sinks.rerun_sink import RerunSink
+    from evstream.sinks.rerun_sink import FILE_SENDS, RerunSink
     from evstream.sinks.rerun_viewer import open_output
 
     if geometry is None:
@@ -95,7 +95,8 @@ def _rerun(name: str, geometry, framer, options, inputs=()) -> SinkWriter:
             output.discard()
         raise
     try:
-        sink = RerunSink(out.rec, geometry=geometry, framer=framer, **options)
+        sends = FILE_SENDS if output is not None else {}  # a file: Rerun's writer kept busy (rerun_sink)
+        sink = RerunSink(out.rec, geometry=geometry, framer=framer, **{**sends, **options})
     except BaseException:
         out.stop()
         if output is not None:

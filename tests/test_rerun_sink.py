@@ -145,6 +145,39 @@ def test_one_entity_layout_holds_every_class_its_ids_and_the_slab_in_one_chunk_p
     rates = np.array([r[0] for r in rates])[np.argsort(t_rate)]
     assert np.sum(rates * (ends_us - starts_us) * 1e-6) == pytest.approx(len(ev), rel=1e-9)
 
+def _drawn(data, entity: str, bin_us: int) -> list[tuple]:
+    """Every point of `entity` as (its row's time bin, x, y, z), sorted: what the 3D view draws when."""
+    times, rows = column_rows(data[entity], "Points3D:positions")
+    return sorted((int(t) // (bin_us * 1000), *map(float, p)) for t, row in zip(times, rows) for p in row)
+
+
+def test_how_often_the_sink_sends_cuts_rows_not_what_is_drawn(tmp_path):
+    """Sent after every chunk (a file's FILE_SENDS cadence, at its finest) or once at the end: the same points
+    at the same positions in the same time bins of the same entities, the same slab bins, the same statistics
+    rows. (A send cuts the row of the bin it falls in into two, each stamped with its own last event.)"""
+    from evstream.sinks.rerun_sink import FILE_SENDS
+
+    assert FILE_SENDS["send_every_s"] < FILE_SENDS["stats_every_s"]
+    ev = classified(20_000, seed=7)
+    chunks = split(ev, 12, seed=8)
+    write(tmp_path / "each.rrd", chunks, point_budget_hz=None, time_bin_us=2000, send_every_s=0.0)
+    write(tmp_path / "once.rrd", chunks, point_budget_hz=None, time_bin_us=2000, send_every_s=3600.0)
+    each, once = read_rrd(tmp_path / "each.rrd"), read_rrd(tmp_path / "once.rrd")
+    chunks_of = [len([rb for t, rb in data["/events/signal"] if t is not None]) for data in (each, once)]
+    assert chunks_of[0] > chunks_of[1] == 1
+    assert sorted(each) == sorted(once)
+    for entity in CLASS_ENTITIES.values():
+        drawn = _drawn(each, "/" + entity, 2000)
+        assert drawn == _drawn(once, "/" + entity, 2000) and len(drawn) > 0
+    assert sum(len(_drawn(each, "/" + e, 2000)) for e in CLASS_ENTITIES.values()) == len(ev)
+    t_each, _ = column_rows(each["/events"], "Transform3D:translation")
+    t_once, _ = column_rows(once["/events"], "Transform3D:translation")
+    assert set(t_each // 2_000_000) == set(t_once // 2_000_000) and t_each.max() == t_once.max()
+    for entity in ("/stats/events/rate_hz", "/stats/noise_fraction/background", "/stats/noise_fraction/hot_pixel"):
+        (ta, va), (tb, vb) = column_rows(each[entity], "Scalars:scalars"), column_rows(once[entity], "Scalars:scalars")
+        assert sorted(zip(ta.tolist(), va)) == sorted(zip(tb.tolist(), vb)) and len(ta) > 0
+
+
 def test_statistics_use_every_event_even_when_points_are_dropped(tmp_path):
     ev = classified(30_000, seed=3)
     path = tmp_path / "b.rrd"
