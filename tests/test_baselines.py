@@ -327,6 +327,17 @@ def test_bad_parameters_are_refused_at_construction(spec):
       ({"k": 0}, "k must be an integer in 1..2*window_events, got 0"),
       ({"window_events": 3, "k": 7}, "k must be an integer in 1..2*window_events, got 7"),
       ({"k": True}, "k must be an integer in 1..2*window_events, got True")]),
+    (HotPixelLearner, [{"window_us": 1, "rate_hz": 1e-9}, {"window_us": np.int64(5), "rate_hz": 3}],
+     [({"window_us": 0}, "window_us must be a positive integer, got 0"),
+      ({"window_us": -2}, "window_us must be a positive integer, got -2"),
+      ({"window_us": 1.5}, "window_us must be a positive integer, got 1.5"),
+      ({"rate_hz": 0}, "rate_hz must be a positive number, got 0"),
+      ({"rate_hz": True}, "rate_hz must be a positive number, got True"),
+      ({"rate_hz": "9"}, "rate_hz must be a positive number, got '9'")]),
+    (RefractoryFilter, [{"refractory_us": 1}, {"refractory_us": np.int64(2**40)}],
+     [({"refractory_us": 0}, "refractory_us must be a positive integer, got 0"),
+      ({"refractory_us": 2.5}, "refractory_us must be a positive integer, got 2.5"),
+      ({"refractory_us": True}, "refractory_us must be a positive integer, got True")]),
 ])
 def test_each_parameter_is_taken_to_its_limits_and_refused_past_them(cls, ok, bad):
     """Every limit accepted, and one past it refused with its own message naming the stage; accepted
@@ -335,10 +346,11 @@ def test_each_parameter_is_taken_to_its_limits_and_refused_past_them(cls, ok, ba
     for kw in ok:
         stage = cls(**kw)
         for k, v in kw.items():
-            want = float if k == "hot_ratio" else plain.get(type(v), type(v))
+            want = float if k in ("hot_ratio", "rate_hz") else plain.get(type(v), type(v))
             assert getattr(stage, k) == v and type(getattr(stage, k)) is want
     kind = {KhodamoradiFilter: "khodamoradi", YNoiseFilter: "ynoise", SpatioTemporalCorrelationFilter: "stcf",
-            BackgroundActivityFilter: "baf", DoubleWindowFilter: "dwf"}[cls]
+            BackgroundActivityFilter: "baf", DoubleWindowFilter: "dwf", HotPixelLearner: "hotpixel",
+            RefractoryFilter: "refractory"}[cls]
     for kw, why in bad:
         with pytest.raises(ValueError, match=f"^{re.escape(f'{kind}: {why}')}$"):
             cls(**kw)
@@ -517,6 +529,20 @@ def _near(points, radius):
         m[max(0, y - radius): y + radius + 1, max(0, x - radius): x + radius + 1] = True
     return m
 
+
+
+def test_hotpixel_forgets_a_window_when_a_whole_window_passes_without_events():
+    """A pixel hot in window k is not hot in window k + 2 when no event at all came in window k + 1:
+    the learner then sees a gap of two windows, which counts as rate 0, not as window k's rate."""
+    t = [100, 200, 300, 2_500]  # window_us 1000: three events in window 0, none in window 1, one in window 2
+    s = EventChunk.from_arrays(t, [4] * 4, [4] * 4, [1] * 4, SMALL)
+    codes, scores = HotPixelLearner(window_us=1000, rate_hz=2000).classify_scored(s)
+    np.testing.assert_array_equal(codes, [SIG] * 4)
+    assert scores[-1] == 0.0
+    np.testing.assert_array_equal(codes, ref_hotpixel(s, 1000, 2000)[0])
+    # with an event elsewhere in window 1 the windows are adjacent: window 1 is then the previous one
+    s = EventChunk.from_arrays([100, 200, 300, 1_500, 2_500], [4, 4, 4, 9, 4], [4] * 5, [1] * 5, SMALL)
+    assert HotPixelLearner(window_us=1000, rate_hz=2000).classify(s)[-1] == SIG
 
 
 def test_ynoise_neighbour_exactly_one_hot_window_back_is_not_around():

@@ -239,6 +239,15 @@ def test_frames_count_signal_by_default_and_all_events_on_request():
         assert fr.counts.sum() == fr.n_events and fr.counts.shape == (2, G.height, G.width)
 
 
+def test_a_first_window_of_noise_alone_is_an_empty_frame():
+    """The first frame can be empty when every event in it is classed noise: it is emitted as one (the
+    count of empty frames in a row starts at 0), then the next window's signal event."""
+    noise = NoiseClass.BACKGROUND
+    s = EventChunk.from_arrays([0, 500, 1500], [1, 2, 3], [1, 2, 3], [1, 0, 1], G, cls_=[noise, noise, 0])
+    frames = frames_of(FixedWindow(window_us=1000, max_empty_frames=1), [s])
+    assert [(fr.t_start, fr.n_events) for fr in frames] == [(0, 0), (1000, 1)]
+
+
 def test_many_empty_frames_are_bounded_and_the_grid_is_kept():
     s = EventChunk.from_arrays([0, 10**9], [1, 2], [1, 2], [1, 0], G)  # 1000 s of nothing between
     frames = frames_of(FixedWindow(window_us=1000, max_empty_frames=5), [s])
@@ -259,7 +268,7 @@ def test_many_empty_frames_are_bounded_and_the_grid_is_kept():
     ({"kind": "adaptive", "window_us": 100, "overlap_max_us": 100}, "less than window_us"),
     ({"kind": "adaptive", "k_us_per_event": -1}, "k_us_per_event"),
     ({"kind": "adaptive", "overlap_init_us": 6000}, "overlap_init_us"),
-    ({"kind": "fw", "all_events": "yes"}, "all_events"),
+    ({"kind": "fw", "all_events": "yes"}, "^fw: all_events must be true or false, got 'yes'$"),
     ({"kind": "fw", "stride_us": 3}, "unknown parameter .stride_us.; its parameters: window_us"),
 ])
 def test_bad_parameters_are_a_clear_value_error(spec, message):

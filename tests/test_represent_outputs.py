@@ -21,10 +21,10 @@ G = Geometry(30, 20)
 def test_npz_files_hold_the_arrays_and_window_times(tmp_path):
     s = random_stream(1, 3000, G)
     pipe = Pipeline([], build("framer", {"kind": "voxel", "bins": 3, "window_us": 20_000}))
-    writer = ArrayWriter(tmp_path / "vox")
+    writer = ArrayWriter(tmp_path / "out" / "vox")  # the folder and the one above it are made
     pipe.run([s[:1000], s[1000:]], [writer])
     frames = frames_of(build("framer", {"kind": "voxel", "bins": 3, "window_us": 20_000}), [s])
-    files = sorted((tmp_path / "vox").iterdir())
+    files = sorted((tmp_path / "out" / "vox").iterdir())
     assert [f.name for f in files] == [f"frame_{i:06d}.npz" for i in range(len(frames))] and writer.written > 3
     for path, fr in zip(files, frames):
         with np.load(path) as z:  # no allow_pickle needed: no Python objects inside
@@ -32,7 +32,7 @@ def test_npz_files_hold_the_arrays_and_window_times(tmp_path):
             assert (int(z["t_start_us"]), int(z["t_end_us"]), int(z["n_events"])) == (fr.t_start, fr.t_end,
                                                                                        fr.n_events)
             assert str(z["kind"]) == "voxel" and list(z["channels"]) == ["bin0", "bin1", "bin2"]
-    assert not list((tmp_path / "vox").glob("*.part"))
+    assert not list((tmp_path / "out" / "vox").glob("*.part"))
 
 
 def test_npz_output_refuses_plain_frames(tmp_path):

@@ -114,6 +114,20 @@ def test_skip_before_in_blocks_of_any_size():
         np.testing.assert_array_equal(t[t >= start], s.t[s.t >= start])
 
 
+def test_evt3_skip_reads_a_block_inside_the_period_holding_the_start_word_by_word():
+    """A block that begins inside the TIME_HIGH period holding start_us and has no TIME_HIGH of its own:
+    the period carried over from the blocks before already reaches the start, so the block is read word
+    by word; its events at or after the start are kept, not skipped with the block."""
+    n = 1000
+    t = 8192 + 3 * np.arange(n)  # all in one TIME_HIGH period, 8192 .. 12287 µs
+    s = EventChunk.from_arrays(t, np.arange(n) % G.width, np.arange(n) // G.width % G.height, np.arange(n) % 2, G)
+    data = evt3.encode(s.t, s.x, s.y, s.p)
+    for block in (64, 502, 2000):
+        for start in (8192 + 3 * 400 + 1, 11_000):
+            got = np.concatenate([q[0] for q in seek_in_blocks(evt3.Evt3Decoder(), data, start, block)])
+            np.testing.assert_array_equal(got[got >= start], s.t[s.t >= start])
+
+
 # -- NumPy ----------------------------------------------------------------------------------------
 def test_npy_bisects_and_refuses_a_file_out_of_time_order(tmp_path):
     s = spread(2, 5000, 1_000_000)
@@ -227,3 +241,22 @@ def test_evt3_skip_follows_state_words_across_periods(seed, block):
         keep = got[0] >= start
         for g, w in zip(got, want):
             np.testing.assert_array_equal(g[keep], w)
+
+
+def test_evt3_skip_counts_the_clock_wraps_and_other_words_like_decoding():
+    """Seeking counts each 24-bit clock wrap it passes once, as decoding does; the OTHERS words decoding
+    meets are counted one by one."""
+    words = []
+    for _ in range(3):  # three laps of the 12-bit TIME_HIGH: two wraps (4095 -> 0)
+        for high in (0, 1000, 2000, 3000, 4095):
+            words += [_word(0x8, high), _word(0x6, 5), _word(0x0, 3), _word(0x2, 4), _word(0xE, 1)]
+    data = np.array(words, "<u2").tobytes()
+    full = evt3.Evt3Decoder()
+    t_all = full.decode(data)[0]
+    assert full.counters["wraps"] == 2 and full.counters["others"] == 15
+    for start in (int(t_all[7]), int(t_all[-1])):
+        for block in (2, 6, 40):
+            dec = evt3.Evt3Decoder()
+            t = np.concatenate([q[0] for q in seek_in_blocks(dec, data, start, block)])
+            np.testing.assert_array_equal(t[t >= start], t_all[t_all >= start])
+            assert dec.counters["wraps"] == 2
