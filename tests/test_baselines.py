@@ -545,6 +545,14 @@ def test_hotpixel_forgets_a_window_when_a_whole_window_passes_without_events():
     assert HotPixelLearner(window_us=1000, rate_hz=2000).classify(s)[-1] == SIG
 
 
+def test_hotpixel_a_pixel_exactly_at_rate_hz_is_hot():
+    """rate >= rate_hz: two events in a 1000 µs window are 2000 Hz, hot at rate_hz = 2000 (the count
+    threshold is ceil(rate_hz * window) = 2, not 3, when that product is a whole number)."""
+    s = EventChunk.from_arrays([100, 200, 1_500], [4] * 3, [4] * 3, [1] * 3, SMALL)
+    assert list(HotPixelLearner(window_us=1000, rate_hz=2000).classify(s)) == [SIG, SIG, HOT]
+    assert list(HotPixelLearner(window_us=1000, rate_hz=2000.5).classify(s)) == [SIG, SIG, SIG]
+
+
 def test_ynoise_neighbour_exactly_one_hot_window_back_is_not_around():
     """The hot-pixel ratio counts neighbours active within the hot window (age < hot_window_us): one whose
     last event is exactly hot_window_us old does not dilute a pixel firing alone, which stays HOT_PIXEL."""
