@@ -24,6 +24,7 @@ import importlib.util
 import json
 import os
 import signal
+import sys
 import threading
 import weakref
 from pathlib import Path
@@ -310,7 +311,13 @@ def load_aot(index_path: Path) -> dict:
         index = json.loads(index_path.read_text())
         if index["package"] != str(Path(__file__).resolve().parent):  # a copy of the tree (tests/mutation.py)
             return {}
-        if source_stamps(index["sources"]) != index["sources"] or index["cpu"] != cpu_id():
+        changed = changed_sources(index["sources"])
+        if changed or index["cpu"] != cpu_id():
+            if changed and sys.stderr is not None and sys.stderr.isatty():  # a person at a terminal, after a pull
+                first = os.path.relpath(changed[0], Path(index["package"]).parent)
+                more = f" and {len(changed) - 1} more files" if len(changed) > 1 else ""
+                print(f"evstream: note: {first}{more} changed since the kernels were compiled ahead of time: numba "
+                      "compiles them instead (seconds at first use); `make aot` rebuilds them", file=sys.stderr)
             return {}
         if not index["module"].endswith(importlib.machinery.EXTENSION_SUFFIXES[0]):
             return {}  # built for another Python (its ABI in the name): loaded by path, it would not be refused
@@ -354,6 +361,12 @@ def source_stamps(paths) -> dict[str, list[int]]:
         st = os.stat(path)
         stamps[str(path)] = [st.st_size, st.st_mtime_ns]
     return stamps
+
+
+def changed_sources(stamps: dict) -> list[str]:
+    """The files of `stamps` ({path: [size, mtime in ns]}) whose size or time is not that now, or gone."""
+    return [path for path, stamp in stamps.items()
+            if not os.path.exists(path) or source_stamps([path])[path] != stamp]
 
 
 def _decode(arg_keys: list) -> tuple:

@@ -322,3 +322,24 @@ def test_every_make_target_a_user_types_rebuilds_stale_kernels_and_only_then(tmp
     out = would_run("demo")
     assert "pip install" in out and out.index("pip install") < out.index("-m evstream.aot")
     assert out.count("-m evstream.aot") == 1
+
+
+@needs_aot
+def test_a_module_older_than_the_sources_says_so_on_a_terminal(tmp_path, monkeypatch, capsys):
+    """After a `git pull` that changed a kernel's module, a command ran numba (seconds) without a word on why
+    (session 9's audit). At a terminal: one note naming the file and `make aot`; captured (tests, pipes): none."""
+    _, index = _copy_of_the_module(tmp_path)
+    index_path = tmp_path / jit.AOT_INDEX.name
+    path = next(iter(index["sources"]))
+    index["sources"][path][1] += 1  # as if pulled after the build
+    index_path.write_text(json.dumps(index))
+    assert jit.load_aot(index_path) == {} and capsys.readouterr().err == ""
+    terminal, tty_name = os.openpty()
+    with open(tty_name, "w", closefd=True) as tty:
+        monkeypatch.setattr(sys, "stderr", tty)
+        assert jit.load_aot(index_path) == {}
+    said = os.read(terminal, 4096).decode()
+    os.close(terminal)
+    name = os.path.relpath(path, Path(index["package"]).parent)
+    assert said == (f"evstream: note: {name} changed since the kernels were compiled ahead of time: numba compiles "
+                    "them instead (seconds at first use); `make aot` rebuilds them\r\n")
