@@ -58,3 +58,11 @@ def test_framer_spec_takes_all_events_only_when_given():
 def test_a_whole_float_is_taken_as_an_int():
     fw = FixedWindow(window_us=1000.0)
     assert fw.window_us == 1000 and type(fw.window_us) is int
+
+
+def test_a_flag_no_chosen_framer_has_is_named():
+    p = _parser()
+    with pytest.raises(ValueError, match=r"^--window-us does not apply to --framer none$"):
+        framers_from_args(p.parse_args(["--window-us", "5"]))
+    with pytest.raises(ValueError, match=r"^--tau-us, --bins does not apply to --framer fw$"):
+        framers_from_args(p.parse_args(["--framer", "fw", "--bins", "3", "--tau-us", "9"]))

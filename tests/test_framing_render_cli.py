@@ -11,7 +11,7 @@ from evstream.sources import native
 from evstream.cli import main
 from evstream.events import Frame, Geometry
 from evstream.framing import FixedCount, FixedWindow
-from evstream.framing.render import COLOUR_MAPS, mosaic, paper, png_bytes, render, signed, write_png
+from evstream.framing.render import COLOUR_MAPS, _table, mosaic, paper, png_bytes, render, signed, write_png
 from evstream.framing.stats import FrameStats, frame_stats
 from evstream.pipeline import Pipeline
 from evstream.testing import frames_of, random_stream
@@ -202,3 +202,12 @@ def test_a_toml_pipeline_builds_a_framer(tmp_path):
     toml.write_text('[framer]\nkind = "adaptive"\noverlap_max_us = 20000\n')
     with pytest.raises(ValueError, match="less than window_us"):
         Pipeline.from_toml(toml)
+
+
+def test_colour_tables_run_through_their_anchors():
+    """A table of 256 colours interpolated between its anchors, the first at 0 and the last at 255."""
+    grey = _table(((0, 0, 0), (255, 255, 255)))
+    assert grey.dtype == np.uint8 and grey.shape == (256, 3)
+    np.testing.assert_array_equal(grey, np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1))
+    three = _table(((0, 0, 0), (200, 100, 0), (0, 0, 0)))
+    assert tuple(three[0]) == (0, 0, 0) and tuple(three[255]) == (0, 0, 0) and tuple(three[128]) == (199, 100, 0)
