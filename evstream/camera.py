@@ -193,6 +193,10 @@ def from_camera_info(path: str | os.PathLike) -> CameraModel:
         mark = getattr(e, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
         raise ValueError(f"{where}: not valid YAML{at}: {getattr(e, 'problem', e)}") from None
+    except IsADirectoryError:  # a parameter's value, as a bad YAML is (the command line's --set: exit 2)
+        raise ValueError(f"{where}: is a folder, not a camera_info file") from None
+    except FileNotFoundError:
+        raise ValueError(f"{where}: no such camera_info file") from None
     if not isinstance(doc, dict) or "camera_matrix" not in doc:
         raise ValueError(f"{where}: not a ROS camera_info file (no camera_matrix)")
     K = _matrix(doc, "camera_matrix", 3, 3, where)

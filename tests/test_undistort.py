@@ -3,6 +3,8 @@ lookup table against plain Python, ROS camera_info reading, and the stage with t
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2  # opencv-python-headless, a dev dependency: the reference for the camera models (missing: a failure)
 import numpy as np
 import pytest
@@ -191,3 +193,19 @@ def test_in_a_toml_pipeline_before_a_framer(tmp_path):
     pipe = Pipeline.from_toml(p)
     stats = pipe.run([random_stream(1, 2000)])
     assert stats.events_dropped > 0 and stats.frames > 0
+
+
+@pytest.mark.parametrize("what, said", [("missing.yaml", "no such camera_info file"),
+                                        (".", "is a folder, not a camera_info file")])
+def test_a_missing_or_folder_camera_info_is_one_line_naming_the_flag(tmp_path, capsys, what, said):
+    """Was `evstream: error: [Errno 2] No such file or directory: 'missing.yaml'` (and `[Errno 21] Is a
+    directory`), exit 1, while a bad YAML there said `--set camera_info=...: ...`, exit 2."""
+    from evstream.cli import main
+
+    path = tmp_path / what
+    bar = Path(__file__).resolve().parents[1] / "recordings" / "bar.npz"
+    assert main(["replay", str(bar), "--denoise", "undistort", "--set", f"camera_info={path}",
+                 "--save", str(tmp_path / "u.rrd")]) == 2
+    assert capsys.readouterr().err == f"evstream: error: --set camera_info={path}: {path}: {said}\n"
+    with pytest.raises(ValueError, match=f"^{path}: {said}$"):
+        from_camera_info(path)
