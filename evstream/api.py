@@ -241,7 +241,7 @@ def classify(what, events, *, geometry=None):
         return run(events).classes()
     if isinstance(events, np.ndarray):
         return run(from_structured(events, geometry)).classes()
-    return (run(chunk) for chunk in events)
+    return (run(chunk) for chunk in _stream(events, "classify"))
 
 
 def clean(what, events, *, geometry=None):
@@ -252,7 +252,26 @@ def clean(what, events, *, geometry=None):
         return run(events).of_class(NoiseClass.SIGNAL)
     if isinstance(events, np.ndarray):
         return events[run(from_structured(events, geometry)).classes() == NoiseClass.SIGNAL]
-    return (run(chunk).of_class(NoiseClass.SIGNAL) for chunk in events)
+    return (run(chunk).of_class(NoiseClass.SIGNAL) for chunk in _stream(events, "clean"))
+
+
+def _stream(events, what: str):
+    """`events` as a stream of chunks: a TypeError saying what was given when it is none (at once when it
+    cannot be iterated, else at the item), not `object of type 'int' has no len()` from inside a stage."""
+    form = "give an EventChunk, a structured array or a stream (iterable) of EventChunks"
+    try:
+        items = iter(events)
+    except TypeError:
+        raise TypeError(f"{what}: events is a {type(events).__name__}; {form}") from None
+
+    def checked():
+        for i, chunk in enumerate(items):
+            if not isinstance(chunk, EventChunk):
+                raise TypeError(f"{what}: item {i} of the stream is a {type(chunk).__name__}, not an EventChunk; "
+                                f"{form}")
+            yield chunk
+
+    return checked()
 
 
 def _runner(what):

@@ -318,3 +318,16 @@ def test_a_bad_value_is_said_as_a_plain_value_not_as_numpy_code(bad):
                 assert "np." not in text and "numpy" not in text, (entry["kind"], param["name"], text)
                 said += "got " in text
     assert said >= 10  # the check ran on messages that show the value
+
+
+def test_what_is_not_events_is_one_type_error_saying_what_was_given():
+    """`clean("stcf", [1, 2, 3])` gave a generator whose first item raised `object of type 'int' has no
+    len()` from inside the stage; `clean("stcf", 5)` failed only when iterated."""
+    chunk, later = evstream.read(BAR, end_us=10_000), evstream.read(BAR, start_us=10_000, end_us=20_000)
+    for fn in (evstream.classify, evstream.clean):
+        with pytest.raises(TypeError, match=rf"^{fn.__name__}: events is a int; give an EventChunk, a structured "
+                                            r"array or a stream \(iterable\) of EventChunks$"):
+            fn("stcf", 5)
+        with pytest.raises(TypeError, match=rf"^{fn.__name__}: item 1 of the stream is a list, not an EventChunk"):
+            list(fn("stcf", [chunk, [1, 2, 3]]))
+        assert 0 < sum(map(len, fn("stcf", [chunk, later]))) <= len(chunk) + len(later)  # a list of chunks: a stream
