@@ -47,7 +47,8 @@ TARGETS = {
     "framing": ([FRAMING + f for f in ("arrays.py", "base.py", "fixed.py", "options.py", "overlap.py",
                                        "render.py", "stats.py")],
                 ["tests/test_framing.py", "tests/test_invariant_kit.py", "tests/test_framing_render_cli.py",
-                 "tests/test_represent_outputs.py", "tests/test_framing_options.py"]),
+                 "tests/test_represent_outputs.py", "tests/test_framing_options.py",
+                 "tests/test_framing_render.py"]),
     "codecs": ([CODECS + f for f in ("attachment.py", "event_packet.py", "evt2.py", "evt3.py")],
                ["tests/test_codecs_evt2.py", "tests/test_codecs_evt3.py", "tests/test_event_packet.py",
                 "tests/test_zenoh_attachment.py", "tests/test_seek.py"]),
@@ -281,6 +282,11 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "framer flags: argparse's default is None without `default=None`; getattr(args, 'all_events', None) "
     "is as falsy as False for arguments without the flag": [
         "evstream.framing.options.x_add_framer_flags__mutmut_44", "evstream.framing.options.x_framer_spec__mutmut_26"],
+    "render: a sequential map's total is never negative (ON + OFF counts, or |array|), so clipping it "
+    "from None is clipping from 0; a time surface or last-timestamp image is within 0..1, so clipping "
+    "it at 2 is at 1; write_png's sync=False only spares an fsync (the same bytes)": [
+        "evstream.framing.render.x_coloured__mutmut_33", "evstream.framing.render.x_render_representation__mutmut_20",
+        "evstream.framing.render.x_write_png__mutmut_4"],
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 
