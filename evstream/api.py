@@ -257,7 +257,8 @@ def clean(what, events, *, geometry=None):
 
 def _stream(events, what: str):
     """`events` as a stream of chunks: a TypeError saying what was given when it is none (at once when it
-    cannot be iterated, else at the item), not `object of type 'int' has no len()` from inside a stage."""
+    cannot be iterated, else at the item), not `object of type 'int' has no len()` from inside a stage; an
+    EventError when a chunk starts before the previous one ended (a stage would take it silently)."""
     form = "give an EventChunk, a structured array or a stream (iterable) of EventChunks"
     try:
         items = iter(events)
@@ -265,10 +266,16 @@ def _stream(events, what: str):
         raise TypeError(f"{what}: events is a {type(events).__name__}; {form}") from None
 
     def checked():
+        last_t, last_i = None, None
         for i, chunk in enumerate(items):
             if not isinstance(chunk, EventChunk):
                 raise TypeError(f"{what}: item {i} of the stream is a {type(chunk).__name__}, not an EventChunk; "
                                 f"{form}")
+            if len(chunk):  # each chunk was checked alone; a stage's state also needs them in time order
+                if last_t is not None and chunk.t[0] < last_t:
+                    raise EventError(f"{what}: item {i} of the stream starts at t={int(chunk.t[0])} µs, before the "
+                                     f"last event of item {last_i} (t={last_t} µs): time goes back")
+                last_t, last_i = int(chunk.t[-1]), i
             yield chunk
 
     return checked()

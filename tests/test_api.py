@@ -331,3 +331,15 @@ def test_what_is_not_events_is_one_type_error_saying_what_was_given():
         with pytest.raises(TypeError, match=rf"^{fn.__name__}: item 1 of the stream is a list, not an EventChunk"):
             list(fn("stcf", [chunk, [1, 2, 3]]))
         assert 0 < sum(map(len, fn("stcf", [chunk, later]))) <= len(chunk) + len(later)  # a list of chunks: a stream
+
+
+def test_a_stream_whose_time_goes_back_between_chunks_is_an_event_error():
+    """docs/api.md: time going back is an EventError; each chunk was checked alone, so the same chunk twice
+    (or chunks out of order) went through a stage without a word."""
+    early, late = evstream.read(BAR, end_us=10_000), evstream.read(BAR, start_us=10_000, end_us=20_000)
+    for fn in (evstream.classify, evstream.clean):
+        with pytest.raises(evstream.EventError, match=rf"^{fn.__name__}: item 2 of the stream starts at "
+                                                       rf"t={early.t[0]} µs, before the last event of item 1 "
+                                                       rf"\(t={late.t[-1]} µs\): time goes back$"):
+            list(fn("stcf", [early, late, early]))
+        assert len(list(fn("stcf", [early, early[:0], late]))) == 3  # an empty chunk between: in order
