@@ -200,7 +200,8 @@ class McapLogSource:
                 self._selected = selected
                 return self._decode(rec, 0)
         what = f"topic {self.topic!r}" if self.topic else "event_camera_msgs/msg/EventPacket channel"
-        where = f" before the file breaks off at byte {scan.stopped_at}" if scan.stopped_at is not None else ""
+        where = (f" before the file breaks off at byte {scan.stopped_at} ({scan.reason})" if scan.stopped_at is not None
+                 else "")
         raise EventError(f"{self.path}: no {what} with messages{where}")
 
     def _decode(self, msg: Message, offset: int):

@@ -420,3 +420,21 @@ def test_the_installed_mcap_takes_the_bulk_path():
     version = importlib.metadata.version("mcap")
     assert not McapSink._ONE_BY_ONE, (f"mcap {version} is not in BULK_MCAP_VERSIONS {BULK_MCAP_VERSIONS}: check "
                                       "McapSink._add_packets against its Writer.add_message, then list it")
+
+
+def test_an_archive_cut_inside_its_only_chunk_says_why_nothing_was_recovered(tmp_path, capsys):
+    """A 0.5 s recording is one chunk (--flush-s 1): cut at 97 % there is nothing whole to read, and the
+    error said only 'breaks off at byte 734', where the chunk starts, not that the chunk runs past the end."""
+    from evstream.cli import main
+
+    whole = tmp_path / "bar.mcap"
+    assert main(["archive", str(Path(__file__).resolve().parents[1] / "recordings" / "bar.npz"), str(whole), "-q"]) == 0
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 97 // 100])
+    capsys.readouterr()
+    assert main(["info", str(cut)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"evstream: error: {cut}: no event_camera_msgs/msg/EventPacket channel with messages before "
+                          "the file breaks off at byte ") and "(CHUNK record has length" in err, err
+    assert err.count("\n") == 1
