@@ -10,11 +10,12 @@ writing on their own threads, evstream.threads), with the kernels compiled ahead
 
 Each row is the best of `--repeat` runs (by wall time). Columns: wall time and CPU time of the process (all
 its threads), events per wall second; and, for a machine shared with other work, per-thread CPU (reader,
-stages, writer, other: threads not ours, Rerun's) and the critical path — start-up CPU plus the busiest
-thread's CPU, what the wall time would be with a free core per thread — and the events per second it
-allows; and the 2-core floor: start-up CPU plus the larger of the busiest thread's CPU and half the run's
-CPU (all threads, Rerun's included), the wall time two free cores would give with a perfect overlap. On a
-quiet 2-core machine the wall column is the one to quote (wall ÷ floor says how well the threads
+stages, writer, other: threads not ours, Rerun's; for `replay`, a line more: Rerun's file writer thread's
+CPU, and how much of it came after the run, which the command waited for) and the critical path —
+start-up CPU plus the busiest thread's CPU, what the wall time would be with a free core per thread — and
+the events per second it allows; and the 2-core floor: start-up CPU plus the larger of the busiest thread's
+CPU and half the run's CPU (all threads, Rerun's included), the wall time two free cores would give with a
+perfect overlap. On a quiet 2-core machine the wall column is the one to quote (wall ÷ floor says how well the threads
 overlap); under load, the CPU columns.
 """
 
@@ -74,9 +75,35 @@ def child(argv: list[str]) -> None:
         return stats
 
     pipeline.Pipeline.run = timed_run
+    if argv[0] == "replay":  # Rerun's file writer: its CPU when the run ended and once all was written
+        from evstream.sinks import rerun_viewer
+
+        flushed = rerun_viewer.wait_flushed
+
+        def timed_flush(rec, part=None):
+            at_end = _thread_cpu_s("file_writer")
+            flushed(rec, part)
+            seen.update(rerun_writer_s=_thread_cpu_s("file_writer"), rerun_writer_after_run_s=
+                        _thread_cpu_s("file_writer") - at_end)
+
+        rerun_viewer.wait_flushed = timed_flush
     code = main(argv)
     seen.update(code=code, wall_s=time.perf_counter() - t_wall, cpu_s=time.process_time() - t_cpu)
     Path(os.environ["BENCH_OUT"]).write_text(json.dumps(seen))
+
+
+def _thread_cpu_s(name: str) -> float:
+    """CPU time (user + system) of this process's threads called `name`, from /proc."""
+    total = 0.0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            if Path(f"/proc/self/task/{tid}/comm").read_text().strip() != name:
+                continue
+            fields = Path(f"/proc/self/task/{tid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # ended meanwhile
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
 
 
 def run_child(argv: list[str], threads: bool, folder: Path, aot: bool = True) -> dict:
@@ -191,6 +218,9 @@ def run(repeat: int = 3, inputs=("raw", "native"), commands=("archive", "replay"
                           f"{r['process_cpu_s']:6.2f} {N_EVENTS / r['process_wall_s'] / 1e6:7.1f} | "
                           + " ".join(f"{th[k]:6.2f}" if k in th else f"{'-':>6}" for k in ROLES)
                           + f" {crit:6.2f} {N_EVENTS / crit / 1e6:7.1f} {floor:7.2f} | {r['rss_mb']:6.0f}", flush=True)
+                    if "rerun_writer_s" in r:
+                        print(f"{'':<44}   Rerun's file writer: {r['rerun_writer_s']:.2f} s CPU, of which "
+                              f"{r['rerun_writer_after_run_s']:.2f} s after the run ended (the wait)", flush=True)
 
 
 if __name__ == "__main__":
