@@ -14,6 +14,7 @@ from evstream.sources._base import (
     EventWarning,
     FileSource,
     as_geometry,
+    check_fits,
     check_not_shrunk,
     fit_geometry,
     guess_columns,
@@ -23,7 +24,7 @@ from evstream.sources._base import (
 from hypothesis import given
 from hypothesis import strategies as st
 
-from evstream.events import EventError, Geometry
+from evstream.events import EventChunk, EventError, Geometry
 
 G = Geometry(64, 32)
 RB = 5  # bytes per record of the "records" layout
@@ -532,3 +533,20 @@ def test_a_file_that_shrinks_or_goes_away_while_read_is_an_error(tmp_path):
     with pytest.raises(EventError, match=rf"^{re.escape(str(path))}: the file went away while it was read: the "
                                          r"events after that are missing$"):
         check_not_shrunk(str(path), 0)
+
+
+@pytest.mark.parametrize("t, x, y, ok", [
+    (0, 15, 15, True), ((1 << 8) - 1, 0, 0, True), (-1, 0, 0, False), (1 << 8, 0, 0, False),
+    (5, 16, 0, False), (5, 0, 16, False)])
+def test_check_fits_at_each_limit(t, x, y, ok):
+    """x and y below `side`, t from 0 to below 2^t_bits: the last value that fits, and the first that
+    does not, of each; the message names the file, the event and the limits."""
+    g = Geometry(40, 40)
+    events = EventChunk.from_arrays([0, t], [1, x], [1, y], [1, 1], g)
+    if ok:
+        check_fits("f.bin", events, 16, 8, "a test file")
+        return
+    with pytest.raises(ValueError) as e:
+        check_fits("f.bin", events, 16, 8, "a test file")
+    assert str(e.value) == (f"f.bin: event 1 (t={t} µs, x={x}, y={y}) does not fit a test file (x, y below 16; "
+                            "t from 0 to below 2^8 µs)")
