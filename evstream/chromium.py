@@ -123,8 +123,11 @@ class HeadlessChromium:
         self.wait_for("Page.loadEventFired", session, timeout_s)
         return session
 
-    def screenshot(self, session: str, png: Path) -> Path:
-        png.write_bytes(base64.b64decode(self.call("Page.captureScreenshot", {"format": "png"}, session)["data"]))
+    def screenshot(self, session: str, png: Path, timeout_s: float = 60.0) -> Path:
+        """Write the tab's page to `png`. Under load the renderer can take a minute and more to draw a frame
+        of the wasm viewer in software: a caller waiting for a drawn picture gives it the rest of its time."""
+        shot = self.call("Page.captureScreenshot", {"format": "png"}, session, timeout_s=timeout_s)
+        png.write_bytes(base64.b64decode(shot["data"]))
         return png
 
     def log_tail(self) -> str:
@@ -151,10 +154,11 @@ class HeadlessChromium:
 
 def wait_until(browser: HeadlessChromium, session: str, png: Path, drawn, timeout_s: float,
                alive=lambda: True, every_s: float = 2.0) -> bool:
-    """Re-shoot `png` until `drawn(png)` holds (True), `timeout_s` passes or `alive()` fails (False)."""
+    """Re-shoot `png` until `drawn(png)` holds (True), `timeout_s` passes or `alive()` fails (False).
+    One shot may take all the time left (at least `every_s`): a slow frame is not a failure before the end."""
     deadline = time.monotonic() + timeout_s
     while True:
-        browser.screenshot(session, png)
+        browser.screenshot(session, png, timeout_s=max(deadline - time.monotonic(), every_s))
         if drawn(png):
             return True
         if time.monotonic() > deadline or not alive():
