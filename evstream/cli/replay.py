@@ -6,6 +6,7 @@ import gc
 import json
 import shlex
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -119,6 +120,7 @@ def cmd_replay(args) -> int:
             lag(batch)
             progress(batch)
 
+        served = _ServeUntilStopped() if out.mode == "serve" else None  # before the run: no window without it
         with StopOnSignal() as stop, out.guard():  # Ctrl-C: stop after the chunk in progress, then the summary
             stats = pipeline.run(paced(lag.watch(source), args.speed), [sink], on_batch=on_batch,
                                  threads=threads.enabled(default=False), stop=lambda: stop.signum is not None)
@@ -162,20 +164,33 @@ def cmd_replay(args) -> int:
                      f"to there is {written}") if save else ""
             print(f"evstream: interrupted by {stopped_by}{where}", file=sys.stderr)
             return 128 + int(stop.signum)
-        if out.mode == "serve":
+        if served is not None:
             print(f"serving {out.web_url} until Ctrl-C", file=sys.stderr, flush=True)
-
-            def _stop(signum, frame):
-                raise KeyboardInterrupt
-
-            signal.signal(signal.SIGTERM, _stop)  # a service manager's stop ends the server cleanly too
-            try:
-                out.process.wait()
-            except KeyboardInterrupt:
-                pass
+            served.wait(out.process)
     finally:
         out.stop()
     return 0
+
+
+class _ServeUntilStopped:
+    """`replay --serve` after the run: Ctrl-C or SIGTERM (a service manager's stop) ends the server cleanly,
+    exit 0. Installed before the run, so `StopOnSignal` puts these handlers back when the run ends: a signal
+    that comes while the summary prints is kept, not a traceback or a death by SIGTERM."""
+
+    def __init__(self):
+        import signal
+
+        self.stopped = threading.Event()
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, self._handle)
+
+    def _handle(self, signum, frame):
+        self.stopped.set()
+
+    def wait(self, server) -> None:
+        """Until a stop signal, or until the server process ends by itself."""
+        while not self.stopped.wait(0.2) and server.poll() is None:
+            pass
 
 
 def add_parser(sub) -> None:
