@@ -60,6 +60,10 @@ TARGETS = {
     "denoise_cascade": ([DENOISE + f for f in ("base.py", "cascade.py", "common.py", "density.py",
                                                "rowsum.py", "timeseries.py")],
                         ["tests/test_paper_cascade.py", "tests/test_rowsum.py"]),
+    # the cascade's three stages alone: with rowsum.py mutated too, its `column_sum` runs as plain Python
+    # while density's kernel (calling the `_head_group` intrinsic) stays compiled and cannot call it
+    "denoise_cascade_stages": ([DENOISE + f for f in ("cascade.py", "density.py", "timeseries.py")],
+                               ["tests/test_paper_cascade.py"]),
     "denoise_baselines": ([DENOISE + f for f in ("baf.py", "dwf.py", "hotpixel.py", "khodamoradi.py",
                                                  "oracle.py", "refractory.py", "stcf.py", "ynoise.py")],
                           ["tests/test_baselines.py"]),
@@ -263,6 +267,13 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_4",
         "evstream.denoise.refractory.xǁRefractoryFilterǁ_allocate__mutmut_7"],
     # session 10 (the in-process executor)
+    "the cascade's progress as float64: it holds an event index (< 2^53, exact) and a 0/1 flag, so the same "
+    "comparisons and the same calls (seen by hand: the cascade tests pass compiled too; the ahead-of-time "
+    "table misses and numba compiles a float64 variant, a cost, not a result)": [
+        "evstream.denoise.cascade.xǁPaperCascadeǁ_both__mutmut_9"],
+    "bind(kernel, 7, ...) for 6: the bound call gets exactly 6 arguments, so args[:7] + fixed + args[7:] is "
+    "args[:6] + fixed, the same call": [
+        "evstream.denoise.cascade.xǁPaperCascadeǁ_both__mutmut_44"],
     "save_representation: another spelling of the temporary name ('XX.partXX', '.PART'): the file is renamed "
     "to its own name once whole, and no reader looks for the temporary one": [
         f"evstream.framing.arrays.x_save_representation__mutmut_{n}" for n in (6, 7)],

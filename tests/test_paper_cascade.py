@@ -421,10 +421,22 @@ def test_hot_pixels_are_found_and_signal_kept_on_a_synthetic_scene():
 @pytest.mark.parametrize("bad", [
     {"radius_px": -1}, {"radius_px": 1.5}, {"radius_px": True}, {"radius_px": 100_000}, {"window_us": 0},
     {"window_us": 1.5}, {"window_us": "20ms"}, {"mode": "fuzzy"}, {"density_hz": -1}, {"rho_rel": float("nan")},
+    {"rho_rel": -1}, {"rho_rel": float("inf")}, {"density_hz": float("inf")},
 ])
 def test_density_rejects_bad_parameters(bad):
     with pytest.raises(ValueError):
         DensityFilter(**bad)
+
+
+@pytest.mark.parametrize("make", [DensityFilter, TimeSeriesFilter])
+def test_a_stage_keeps_its_state_when_a_chunk_brings_an_equal_geometry(make):
+    """A source may make a new Geometry per chunk: equal sizes are the same sensor, so the state goes on."""
+    s = random_stream(3, 400, G, mean_dt_us=30)
+    whole = make().classify_scored(s)[1]
+    f = make()
+    first = f.classify_scored(s[:200])[1]
+    second = f.classify_scored(s[200:].replace(geometry=Geometry(G.width, G.height)))[1]
+    assert np.allclose(np.concatenate([first, second]), whole)
 
 
 @pytest.mark.parametrize("bad", [
