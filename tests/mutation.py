@@ -274,6 +274,17 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "bind(kernel, 7, ...) for 6: the bound call gets exactly 6 arguments, so args[:7] + fixed + args[7:] is "
     "args[:6] + fixed, the same call": [
         "evstream.denoise.cascade.xǁPaperCascadeǁ_both__mutmut_44"],
+    "dc_kernel's new-bin branch taken for an event of the current bin (bin_end = bin_start - bin_us before the "
+    "first event; ti <= bin_start for <): it stores in_bin and reads it back, its expiry range is empty "
+    "(nb == b), and it sets bin_start and bin_end to what they were, so nothing changes": [
+        "evstream.denoise.timeseries.x_dc_kernel__mutmut_20", "evstream.denoise.timeseries.x_dc_kernel__mutmut_98"],
+    "dc_kernel's prefetch at another address: a prefetch is a hint to the cache that no value depends on (as "
+    "plain Python it does nothing; compiled, a float address may not type, which the tests would see)": [
+        "evstream.denoise.timeseries.x_dc_kernel__mutmut_90"],
+    "TimeSeriesFilter's uint16 row-sum check with 2r + 2 for 2r + 1: after the radius (<= MAX_RADIUS_PX = 32) "
+    "and n_bins (<= 255) checks, (2r + 2) n_bins <= 66 * 255 = 16830, far below 65535: neither form raises "
+    "(seen: radius_px 33 is refused by the radius check first)": [
+        "evstream.denoise.timeseries.xǁTimeSeriesFilterǁ__post_init____mutmut_60"],
     "save_representation: another spelling of the temporary name ('XX.partXX', '.PART'): the file is renamed "
     "to its own name once whole, and no reader looks for the temporary one": [
         f"evstream.framing.arrays.x_save_representation__mutmut_{n}" for n in (6, 7)],
