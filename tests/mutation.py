@@ -285,6 +285,11 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "and n_bins (<= 255) checks, (2r + 2) n_bins <= 66 * 255 = 16830, far below 65535: neither form raises "
     "(seen: radius_px 33 is refused by the radius check first)": [
         "evstream.denoise.timeseries.xǁTimeSeriesFilterǁ__post_init____mutmut_60"],
+    "TimeSeriesFilter's grown `live` buffer as float64: it holds event indices (< BLOCK_EVENTS, exact in "
+    "float64), and every read of one goes through ix() (np.uintp) before it indexes, so the same events "
+    "(by reading; the DC kernel tests pass with it written by hand, compiled, but that they grow the buffer "
+    "was not checked)": [
+        "evstream.denoise.timeseries.xǁTimeSeriesFilterǁ_ready__mutmut_24"],
     "save_representation: another spelling of the temporary name ('XX.partXX', '.PART'): the file is renamed "
     "to its own name once whole, and no reader looks for the temporary one": [
         f"evstream.framing.arrays.x_save_representation__mutmut_{n}" for n in (6, 7)],
