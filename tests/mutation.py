@@ -51,7 +51,8 @@ TARGETS = {
                  "tests/test_framing_render.py"]),
     # framing's two window framers alone (a copy of their own, so `framing`'s verdicts stay)
     "framing_windows": ([FRAMING + "fixed.py", FRAMING + "overlap.py"],
-                        ["tests/test_framing.py", "tests/test_invariant_kit.py", "tests/test_represent_outputs.py"]),
+                        ["tests/test_framing.py", "tests/test_invariant_kit.py", "tests/test_represent_outputs.py",
+                         "tests/test_represent.py"]),
     "codecs": ([CODECS + f for f in ("attachment.py", "event_packet.py", "evt2.py", "evt3.py")],
                ["tests/test_codecs_evt2.py", "tests/test_codecs_evt3.py", "tests/test_event_packet.py",
                 "tests/test_zenoh_attachment.py", "tests/test_seek.py"]),
