@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 import json
 import shlex
+import signal
 import sys
 import threading
 import time
@@ -82,8 +83,6 @@ def _load_rerun():
 
 
 def cmd_replay(args) -> int:
-    import signal
-
     rerun_sink, rerun_viewer = _load_rerun()
 
     outputs = [o for o in ("save", "spawn", "serve", "viewer") if getattr(args, o)]
@@ -178,8 +177,6 @@ class _ServeUntilStopped:
     that comes while the summary prints is kept, not a traceback or a death by SIGTERM."""
 
     def __init__(self):
-        import signal
-
         self.stopped = threading.Event()
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, self._handle)
