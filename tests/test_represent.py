@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from evstream.events import EventChunk, Geometry
 from evstream.framing.base import COUNT_MAX
 from evstream.framing.fixed import FN_DONE, FN_FULL, FN_TIMEOUT, accumulate, fn_scan
-from evstream.framing.overlap import add_flat
+from evstream.framing.overlap import add_flat, slide_kernel
 from evstream.framing.represent import (
     EXP_FLOOR,
     EXP_MIN_NORMAL,
@@ -35,6 +35,7 @@ from evstream.framing.represent import (
     voxel_table,
     voxel_table_kernel,
     voxel_table_of_chunk,
+    voxel_take,
 )
 from evstream.pipeline import Pipeline, build
 from evstream.testing import (
@@ -435,6 +436,74 @@ def test_voxel_and_counts_of_a_fixed_count_window_match_plain_python(seed, n, bi
     np.testing.assert_allclose(vox, voxel_plain(t, f % hw, f >= hw, t_start, t_end, bins, hw), atol=1e-5)
     same = lazily(lambda out, ready: voxel_kernel(t, f, t_start, t_end, bins, hw, out, ready), bins * hw)
     assert vox.view(np.uint32).tolist() == same.view(np.uint32).tolist()
+
+
+def slide_plain(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail):
+    """`slide_kernel` in plain Python: event by event from i until one at or past `end`."""
+    counts, buf_t, buf_f = counts.tolist(), buf_t.tolist(), buf_f.tolist()
+    added, k = 0, i
+    while k < len(t) and t[k] < end:
+        if not use_cls or cls[k] == 0:
+            f = int(p[k]) * hw + int(y[k]) * width + int(x[k])
+            counts[f] = min(counts[f] + 1, COUNT_MAX)
+            added += 1
+            if t[k] >= keep_t:
+                buf_t[tail], buf_f[tail] = int(t[k]), f
+                tail += 1
+        k += 1
+    return k, tail, added, counts, buf_t, buf_f
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(0, 300), st.integers(1, 6), st.booleans())
+def test_an_overlapping_windows_part_of_a_chunk_in_one_call_matches_plain_python(seed, n, bins, use_cls):
+    """`slide_kernel` (an overlapping window's counts and buffer, up to its end) and `voxel_take` (the same,
+    and each event into the window's voxel grid): the plain-Python counts and buffer, and the grid the
+    table kernel makes of the same events, bit for bit."""
+    rng = np.random.default_rng(seed)
+    width, height = 4, 3
+    hw = width * height
+    t, x, y, p, cls = random_events(rng, n, width, height)
+    i = int(rng.integers(0, n + 1))
+    t_start = int(t[i]) - int(rng.integers(0, 4)) if i < n else 100
+    end = t_start + int(rng.integers(1, 4 * max(1, n)))
+    keep_t = t_start + int(rng.integers(0, end - t_start + 1))
+    if i < n - 1 and rng.random() < 0.5:  # an event at the end, or at keep_t (events at both stay out / in)
+        end = int(t[rng.integers(i + 1, n)])
+        keep_t = int(t[rng.integers(i, n)]) if t[i] < end else t_start
+        keep_t = min(keep_t, end)
+    start_counts = rng.choice([0, 1, COUNT_MAX - 1, COUNT_MAX], 2 * hw).astype(np.uint16)
+    tail = int(rng.integers(0, 5))
+    buf_t0 = rng.integers(0, 99, tail + n + 3).astype(np.int64)
+    buf_f0 = rng.integers(0, 99, tail + n + 3).astype(np.uint32)
+    want = slide_plain(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, start_counts, buf_t0, buf_f0, tail)
+    stop, new_tail = want[0], want[1]
+
+    counts, buf_t, buf_f = start_counts.copy(), buf_t0.copy(), buf_f0.copy()
+    got = slide_kernel(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail)
+    assert (*got, counts.tolist(), buf_t.tolist(), buf_f.tolist()) == want
+
+    span = end - t_start
+    lo_at, w_lo, w_hi = np.empty(span, np.intp), np.empty(2 * span, np.float32), np.empty(2 * span, np.float32)
+    voxel_table(span, bins, hw, lo_at, w_lo, w_hi)
+
+    def take(out, ready):
+        counts, buf_t, buf_f = start_counts.copy(), buf_t0.copy(), buf_f0.copy()
+        *got, ready = voxel_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail,
+                                 t_start, lo_at, w_lo, w_hi, out, ready)
+        assert (*got, counts.tolist(), buf_t.tolist(), buf_f.tolist()) == want
+        return ready
+
+    size = bins * hw
+    grid = lazily(take, size)
+    same = lazily(lambda out, ready: voxel_table_of_chunk(t[i:stop], x[i:stop], y[i:stop], p[i:stop], cls[i:stop],
+                                                          use_cls, t_start, width, hw, lo_at, w_lo, w_hi, out, ready),
+                  size)
+    assert grid.view(np.uint32).tolist() == same.view(np.uint32).tolist()
+    keep = (cls[i:stop] == 0) if use_cls else np.ones(stop - i, bool)
+    pix = (y[i:stop].astype(np.int64) * width + x[i:stop])[keep]
+    np.testing.assert_allclose(grid, voxel_plain(t[i:stop][keep], pix, p[i:stop][keep] == 1, t_start, end, bins, hw),
+                               atol=1e-5)
+    assert new_tail - tail <= stop - i
 
 
 @given(st.integers(0, 2**32 - 1), st.integers(0, 200), st.booleans(), st.integers(1, 40), st.integers(1, 400))

@@ -54,6 +54,47 @@ def add_flat(counts, flat, a, b):
             counts[f] += 1
 
 
+@njit(cache=True, nogil=True)
+def buffer_events(t, x, y, p, cls, use_cls, a, b, width, hw, buf_t, buf_f, at):
+    """Buffer the counted events [a, b) at buf_t/buf_f[at:] (time, flat index p·H·W + y·W + x); returns how
+    many. Without classes, two simple passes (a copy and `flat_index`): they run ~2x faster than one loop
+    storing to both arrays, which numba cannot prove distinct."""
+    if not use_cls:
+        for k in range(a, b):
+            buf_t[ix(at + k - a)] = t[ix(k)]
+        flat_index(x, y, p, a, b, width, hw, buf_f, at)
+        return b - a
+    j = at
+    for k in range(a, b):
+        i = ix(k)
+        if cls[i] == 0:
+            buf_t[ix(j)] = t[i]
+            buf_f[ix(j)] = np.intp(p[i]) * hw + np.intp(y[i]) * width + x[i]
+            j += 1
+    return j - at
+
+
+@njit(cache=True, nogil=True)
+def frame_part(t, i, end, keep_t):
+    """(stop, mid): the chunk's events [i, stop) are before the frame's `end`, and [mid, stop) of them at
+    or after `keep_t` (those a next frame may also hold). Binary searches, as `np.searchsorted`."""
+    stop = i + np.searchsorted(t[i:], end)
+    return stop, i + np.searchsorted(t[i:stop], keep_t)
+
+
+@njit(cache=True, nogil=True)
+def slide_kernel(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail):
+    """The current frame's part of a chunk in one call: from event i up to the first event at or past `end`
+    (`stop`), count the counted events into the flat `counts` (saturating) and buffer those at or after
+    `keep_t` at buf_t/buf_f[tail:] (the caller leaves room for every event from i on). Returns (stop, the
+    new tail, how many counted)."""
+    stop, mid = frame_part(t, i, end, keep_t)
+    added = accumulate(x, y, p, cls, use_cls, i, mid, counts, width, hw)
+    k = buffer_events(t, x, y, p, cls, use_cls, mid, stop, width, hw, buf_t, buf_f, tail)
+    add_flat(counts, buf_f, tail, tail + k)
+    return stop, tail + k, added + k
+
+
 class SlidingFramer(FramerBase):
     """Shared machinery of OA and adaptive: subclasses give `window_us`, `_next_start` and `_reach_us`,
     the most a next frame can reach back into this one (its events before `end − reach` are never
@@ -62,11 +103,12 @@ class SlidingFramer(FramerBase):
     window_us: int
     # A representation framer follows the frames' events (so it needs no buffer of its own) and counts
     # them for the frame in the same pass (one pass over the events instead of two): in stream order,
-    # `follower.add(chunk, cls, use_cls, a, b, start, end, counts)` counts the chunk's events [a, b) into
-    # the frame [start, end)'s `counts` exactly as `accumulate` does and returns how many it counted;
-    # `follower.add_flat(t, f, start, end, counts)` those of buffered events (times, flat indices, all
-    # counted) as `add_flat` does: the events [mid, b) the frame buffers, and those a new frame
-    # starts with when the previous one closes.
+    # `follower.take(chunk, cls, use_cls, i, start, end, keep_t, counts, buf_t, buf_f, tail)` does what
+    # `slide_kernel` does for the frame [start, end) (counts the chunk's events from i up to `end` into
+    # its `counts`, buffers those at or after keep_t, returns (stop, tail, how many counted)) and adds
+    # them to its own array; `follower.add_flat(t, f, start, end, counts)` counts buffered events (times,
+    # flat indices, all counted) as `add_flat` does: those a new frame starts with when the previous
+    # one closes.
     follower = None
 
     def _reset(self) -> None:
@@ -97,45 +139,25 @@ class SlidingFramer(FramerBase):
             if self.start is None:
                 self._first(int(chunk.t[0]))
             cls, use_cls = self._cls(chunk)
-            t = chunk.t
+            n = len(chunk)
             i = 0
-            while True:
-                stop = i + int(np.searchsorted(t[i:], self.end, side="left"))
-                mid = i + int(np.searchsorted(t[i:stop], self.end - self._reach_us, side="left"))
+            while True:  # one kernel call per frame's part of the chunk
+                if self.tail + n - i > len(self.buf_t):
+                    self._make_room(n - i)
+                keep_t = self.end - self._reach_us
                 if self.follower is None:
-                    self.n += accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, i, mid, self.counts,
-                                         self._width, self._hw)
-                elif mid > i:
-                    self.n += self.follower.add(chunk, cls, use_cls, i, mid, self.start, self.end, self.counts)
-                self._buffer(chunk, cls, use_cls, mid, stop)
-                i = stop
-                if i == len(chunk):
+                    i, self.tail, added = slide_kernel(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, self.end,
+                                                       keep_t, self._width, self._hw, self.counts, self.buf_t,
+                                                       self.buf_f, self.tail)
+                else:
+                    i, self.tail, added = self.follower.take(chunk, cls, use_cls, i, self.start, self.end, keep_t,
+                                                             self.counts, self.buf_t, self.buf_f, self.tail)
+                self.n += added
+                if i == n:
                     break
-                self._advance(int(t[i]), out)
+                self._advance(int(chunk.t[i]), out)
         self._advance(watermark(chunk), out)
         return out
-
-    def _buffer(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int) -> None:
-        """Count the counted events [a, b) and buffer them: times copied, flat indices computed, then
-        counted from the buffer (three simple passes run ~2x faster than one loop storing to three
-        arrays, which numba cannot prove distinct)."""
-        idx = a + np.flatnonzero(cls[a:b] == 0) if use_cls else None
-        k = b - a if idx is None else len(idx)
-        if self.tail + k > len(self.buf_t):
-            self._make_room(k)
-        at = self.tail
-        if idx is None:
-            self.buf_t[at : at + k] = chunk.t[a:b]
-            flat_index(chunk.x, chunk.y, chunk.p, a, b, self._width, self._hw, self.buf_f, at)
-        else:
-            self.buf_t[at : at + k] = chunk.t[idx]
-            flat_index_of(chunk.x, chunk.y, chunk.p, idx, self._width, self._hw, self.buf_f, at)
-        if self.follower is None:
-            add_flat(self.counts, self.buf_f, at, at + k)
-        elif k:
-            self.follower.add_flat(self.buf_t[at : at + k], self.buf_f[at : at + k], self.start, self.end, self.counts)
-        self.tail += k
-        self.n += k
 
     def _make_room(self, more: int) -> None:
         """Drop the buffered events no frame needs any more; grow the buffer to take `more`. The buffer

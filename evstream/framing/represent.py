@@ -44,7 +44,7 @@ from ..nowrap import ix
 from ..pipeline import build, register
 from .base import COUNT_MAX, FramerBase, check_positive_int
 from .fixed import accumulate
-from .overlap import add_flat, flat_index, flat_index_of
+from .overlap import add_flat, buffer_events, flat_index, flat_index_of, frame_part, slide_kernel
 
 WINDOWS = ("fw", "fn", "oa", "adaptive")
 # The windowing framers' parameters a representation passes on (None: the window's default).
@@ -256,6 +256,22 @@ def voxel_count_flat(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, counts, out, 
             ready = _zero_bins(out, ready, base + 2 * hw)
         _voxel_add_table(out, f - hw * on, on, dt, base, hw, w_lo, w_hi)
     return ready
+
+
+@njit(cache=True, nogil=True)
+def voxel_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail, t_start, lo_at, w_lo,
+               w_hi, out, ready):
+    """An overlapping window's part of a chunk in one call (`SlidingFramer.follower.take`): what
+    `slide_kernel` does (count the events from i up to `end`, buffer those at or after keep_t), each event
+    also added to the window's voxel grid, through the table, in stream order. Returns (stop, the new
+    tail, how many counted, `ready`)."""
+    stop, mid = frame_part(t, i, end, keep_t)
+    added, ready = voxel_count_of_chunk(t, x, y, p, cls, use_cls, i, mid, t_start, width, hw, lo_at, w_lo, w_hi,
+                                        counts, out, ready)
+    k = buffer_events(t, x, y, p, cls, use_cls, mid, stop, width, hw, buf_t, buf_f, tail)
+    ready = voxel_count_flat(buf_t[tail : tail + k], buf_f[tail : tail + k], t_start, hw, lo_at, w_lo, w_hi, counts,
+                             out, ready)
+    return stop, tail + k, added + k, ready
 
 
 @njit(cache=True, nogil=True)
@@ -490,7 +506,7 @@ class RepresentationFramer(FramerBase):
         return out
 
     def add(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, t_start: int, t_end: int, counts) -> int:
-        """Called by the windowing framer as it counts (fw, oa, adaptive; see `SlidingFramer.follower`): the
+        """Called by the fixed time windowing framer as it counts (`FixedWindow.follower`): the
         chunk's events [a, b) go into the window [t_start, t_end) and its `counts`; returns how many
         counted."""
         grid = self._window_grid(t_start)
@@ -499,6 +515,29 @@ class RepresentationFramer(FramerBase):
             return n
         self._add(chunk.t[a:b], chunk.x[a:b], chunk.y[a:b], chunk.p[a:b], cls[a:b], use_cls, t_start, t_end, grid)
         return accumulate(chunk.x, chunk.y, chunk.p, cls, use_cls, a, b, counts, self._width, self._hw)
+
+    def take(self, chunk: EventChunk, cls, use_cls: bool, i: int, t_start: int, t_end: int, keep_t: int, counts,
+             buf_t, buf_f, tail: int) -> tuple[int, int, int]:
+        """Called by an overlapping windowing framer (`SlidingFramer.follower`): `slide_kernel` (count the
+        chunk's events from i up to t_end, buffer those at or after keep_t) for the window [t_start, t_end),
+        the events also added to its array. Returns (stop, the new tail, how many counted)."""
+        grid = self._window_grid(t_start)
+        got = self._count_take(chunk, cls, use_cls, i, t_start, t_end, keep_t, counts, buf_t, buf_f, tail, grid)
+        if got is not None:
+            return got
+        stop, end, added = slide_kernel(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, t_end, keep_t,
+                                        self._width, self._hw, counts, buf_t, buf_f, tail)
+        mid = i + int(np.searchsorted(chunk.t[i:stop], keep_t))
+        if mid > i:
+            self._add(chunk.t[i:mid], chunk.x[i:mid], chunk.y[i:mid], chunk.p[i:mid], cls[i:mid], use_cls, t_start,
+                      t_end, grid)
+        self._add_flat(buf_t[tail:end], buf_f[tail:end], t_start, t_end, grid)
+        return stop, end, added
+
+    def _count_take(self, chunk, cls, use_cls, i, t_start, t_end, keep_t, counts, buf_t, buf_f, tail,
+                    grid) -> tuple[int, int, int] | None:
+        """`take` in one kernel call where a subclass has a kernel for it, else None."""
+        return None
 
     def add_flat(self, t: np.ndarray, f: np.ndarray, t_start: int, t_end: int, counts) -> None:
         """Overlapping windows (called by the windowing framer): counted events (times, flat indices, in
@@ -719,6 +758,15 @@ class VoxelGrid(RepresentationFramer):
         n, grid.ready = voxel_count_of_chunk(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, a, b, t_start,
                                              self._width, self._hw, *table, counts, grid.flat, grid.ready)
         return n
+
+    def _count_take(self, chunk, cls, use_cls, i, t_start, t_end, keep_t, counts, buf_t, buf_f, tail, grid):
+        table = self._table(t_end - t_start)
+        if table is None:
+            return None
+        stop, end, added, grid.ready = voxel_take(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, t_end, keep_t,
+                                                  self._width, self._hw, counts, buf_t, buf_f, tail, t_start, *table,
+                                                  grid.flat, grid.ready)
+        return stop, end, added
 
     def _count_add_flat(self, t, f, t_start, t_end, counts, grid):
         table = self._table(t_end - t_start)
