@@ -235,24 +235,63 @@ def classify(what, events, *, geometry=None):
     """Noise classes (uint8: 0 signal, 1 background activity, 2 hot pixel) of `events`, by `what` (a
     stage or framer-less pipeline, built or by name). A chunk or a structured array gives one array of
     classes per event; a stream of chunks gives a stream of classified chunks. A built stage keeps its
-    state from call to call (one recording in pieces); a name makes a fresh one."""
-    run = _runner(what)
-    if isinstance(events, EventChunk):
-        return run(events).classes()
-    if isinstance(events, np.ndarray):
-        return run(from_structured(events, geometry)).classes()
+    state from call to call (one recording in pieces); a name makes a fresh one. A stage that drops
+    events (crop, keep_signal, ...) has no class for every event given: a chunk or an array is then a
+    ValueError (`clean` gives the events it keeps; a stream, the classified chunks)."""
+    run, stages = _runner(what)
+    if isinstance(events, (EventChunk, np.ndarray)):
+        chunk = events if isinstance(events, EventChunk) else from_structured(events, geometry)
+        dropper = next((s for s in stages if getattr(s, "drops_events", False)), None)
+        out = run(chunk) if dropper is None else None
+        if out is None or len(out) != len(chunk):  # declared, or found (a stage of the user's own)
+            raise ValueError(f"classify: {_kind(dropper or stages[-1])} drops events: there is no class for every "
+                             "event given; clean() gives the events kept (classify of a stream, the classified chunks)")
+        return out.classes()
     return (run(chunk) for chunk in _stream(events, "classify"))
 
 
 def clean(what, events, *, geometry=None):
     """The events `what` classes SIGNAL, in the form they came: a chunk, a structured array (same dtype,
-    fields untouched), or a stream of chunks (a stream of the kept chunks)."""
-    run = _runner(what)
+    fields untouched), or a stream of chunks (a stream of the kept chunks). A transform in `what` (crop,
+    flip, downsample, ...) or `keep_signal`: an array holds the events it keeps where it puts them, in the
+    array's dtype (fields t, x, y, p or on only: others cannot follow the events)."""
+    run, stages = _runner(what)
     if isinstance(events, EventChunk):
         return run(events).of_class(NoiseClass.SIGNAL)
     if isinstance(events, np.ndarray):
-        return events[run(from_structured(events, geometry)).classes() == NoiseClass.SIGNAL]
+        out = run(from_structured(events, geometry))
+        moves = next((s for s in stages if getattr(s, "drops_events", False) or hasattr(s, "out_geometry")), None)
+        if moves is None and len(out) == len(events):  # a transform has out_geometry: it may move events
+            return events[out.classes() == NoiseClass.SIGNAL]
+        _check_fields_follow(events, moves or stages[-1])
+        return _as_array(out.of_class(NoiseClass.SIGNAL), events)
     return (run(chunk).of_class(NoiseClass.SIGNAL) for chunk in _stream(events, "clean"))
+
+
+def _kind(stage) -> str:
+    return getattr(stage, "kind", None) or type(stage).__name__
+
+
+def _check_fields_follow(events: np.ndarray, stage) -> None:
+    others = [n for n in events.dtype.names if n not in ("t", "x", "y", "p", "on")]
+    if others:
+        raise ValueError(f"clean: {_kind(stage)} drops or moves events, so the array's field(s) {', '.join(others)} "
+                         "cannot follow them; pass the fields t, x, y, p only (arr[['t', 'x', 'y', 'p']])")
+
+
+def _as_array(chunk: EventChunk, like: np.ndarray) -> np.ndarray:
+    """`chunk` in the dtype of the structured array `like`: its polarity as that array gave it (bool,
+    0/1 or -1/+1); a coordinate that does not fit the field's type is a ValueError, not a wrapped value."""
+    out = np.empty(len(chunk), like.dtype)
+    for name in like.dtype.names:
+        v = chunk.p if name in ("p", "on") else getattr(chunk, name)
+        if name in ("p", "on") and len(like) and like[name].min() < 0:
+            v = np.where(v > 0, 1, -1)
+        elif name in "xy" and len(v) and not np.can_cast(np.min_scalar_type(int(v.max())), like.dtype[name]):
+            raise ValueError(f"clean: {name} = {int(v.max())} after the transform does not fit the array's "
+                             f"{like.dtype[name]} field")
+        out[name] = v
+    return out
 
 
 def _stream(events, what: str):
@@ -282,13 +321,14 @@ def _stream(events, what: str):
 
 
 def _runner(what):
+    """A function of one chunk, and the stages it runs (what a chunk may lose or where its events go)."""
     if isinstance(what, (str, dict)):
         what = build_pipeline(what)
     elif isinstance(what, (list, tuple)):
         what = build_pipeline(*what)
     if isinstance(what, Pipeline):
-        return lambda chunk: what.process(chunk).events
-    return what
+        return (lambda chunk: what.process(chunk).events), what.stages
+    return what, [what]
 
 
 def from_structured(events: np.ndarray, geometry=None) -> EventChunk:

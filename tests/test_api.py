@@ -343,3 +343,39 @@ def test_a_stream_whose_time_goes_back_between_chunks_is_an_event_error():
                                                        rf"\(t={late.t[-1]} µs\): time goes back$"):
             list(fn("stcf", [early, late, early]))
         assert len(list(fn("stcf", [early, early[:0], late]))) == 3  # an empty chunk between: in order
+
+
+@pytest.mark.parametrize("what", ["downsample", {"kind": "crop", "x0": 5, "y0": 3, "width": 20, "height": 10},
+                                  "flip", ["stcf", "keep_signal"], [{"kind": "rotate", "degrees": 90}, "stcf"]],
+                         ids=["downsample", "crop", "flip", "keep_signal", "rotate+stcf"])
+@pytest.mark.parametrize("dtype", [TONIC, FAERY], ids=["tonic", "faery"])
+def test_a_transform_on_a_structured_array_gives_the_events_it_keeps_where_it_puts_them(what, dtype):
+    """`clean("downsample", arr)` gave the array untouched (x up to 345 on a 173-wide output), and a stage
+    that drops events (crop, keep_signal) an IndexError from numpy's boolean index: the kept events' classes
+    were laid over the input's rows. Now the array holds what the chunk form gives, in the array's dtype."""
+    chunk = random_stream(5, 3000, G)
+    arr = as_dtype(chunk, dtype)
+    if dtype is TONIC:
+        arr["p"] = np.where(chunk.p > 0, 1, -1)  # tonic's -1/+1 comes back as -1/+1
+    want = evstream.clean(evstream.build_pipeline(*(what if isinstance(what, list) else [what])), chunk)
+    got = evstream.clean(what, arr, geometry=(40, 30))
+    assert got.dtype == dtype and len(got) == len(want) > 0
+    for name in dtype.names:
+        assert np.array_equal(got[name], want.t if name == "t" else want.p if name == "on" else
+                              np.where(want.p > 0, 1, -1) if name == "p" else getattr(want, name)), name
+    kept = evstream.Denoise(sensor_size=(40, 30, 2), kind="downsample")(arr)  # a tonic-style Downsample
+    assert len(kept) == len(arr) and kept["x"].max() == chunk.x.max() // 2
+
+
+@pytest.mark.parametrize("form", ["chunk", "array"])
+def test_classify_refuses_a_stage_that_drops_events_instead_of_giving_fewer_classes(form):
+    """`classify("crop", chunk)` gave 231 classes for 111,954 events: not one per event given."""
+    chunk = random_stream(6, 2000, G)
+    events = chunk if form == "chunk" else as_dtype(chunk, TONIC)
+    for what in ({"kind": "crop", "width": 20, "height": 10}, ["stcf", "keep_signal"]):
+        with pytest.raises(ValueError, match=r"^classify: (crop|keep_signal) drops events: there is no class for "
+                                             r"every event given; clean\(\) gives the events kept"):
+            evstream.classify(what, events, geometry=(40, 30))
+    assert len(evstream.classify("flip", events, geometry=(40, 30))) == len(chunk)  # moves, keeps every event
+    streamed = list(evstream.classify({"kind": "crop", "width": 20, "height": 10}, [chunk]))  # a stream: chunks
+    assert streamed[0].geometry == Geometry(20, 10)

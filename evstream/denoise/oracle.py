@@ -25,7 +25,9 @@ class TruthStage:
 @register("stage", "keep_signal")
 @dataclass
 class KeepSignal:
-    """Drops every event not classed SIGNAL — the one stage that removes events."""
+    """Drops every event not classed SIGNAL — the one denoise stage that removes events."""
+
+    drops_events = True  # as the transforms say it (not a field: no annotation)
 
     def __call__(self, chunk: EventChunk) -> EventChunk:
         if chunk.cls is None:
