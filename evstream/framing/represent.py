@@ -160,58 +160,72 @@ def voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, bins, width, hw, ou
 # Windows of one span (fixed time and overlapping ones) share each µs's arithmetic: a table of it, made
 # once, replaces five float conversions and three products per event by three loads (~20 % of the
 # voxel kernel). Its entries are computed exactly as `_voxel_add` computes them, so the grid is the same
-# to the bit: v − v·w for v = −1 is −(1 − w) exactly, and a bin's weight of ±0 (t* a whole number)
-# changes no sum (a sum starting at +0 is never −0), so the table skips it as the last bin's.
+# to the bit: v − v·w for v = −1 is −(1 − w) exactly, and adding a weight of ±0 changes no sum (a sum
+# starting at +0 is never −0). So every event adds to two bins, without a test: at t* = B − 1 (the
+# last bin, which has no bin after it) the table gives bins B − 2 and B − 1 with weights +0 and v, the
+# same sums as v in bin B − 1 alone. Tables need B >= 2.
+# The table kernels zero the bins their events reach before the loop, up to the bin after that of the
+# latest event (the events of one call span a chunk's or an overlap's time, a bin or two): the loop
+# then has no test and no call (with them, numba kept half the loop's values on the stack).
 @njit(cache=True, nogil=True)
 def voxel_table(span_us, bins, hw, lo_at, w_lo, w_hi):
     """For each dt in [0, span_us): lo_at[dt] = lo·H·W (lo = ⌊t*⌋, t* = dt·scale as in `voxel_kernel`)
-    and, at 2·dt + on, the weights of polarity ±1 in bins lo and lo + 1 (0 for the last bin)."""
+    and, at 2·dt + on, the weights of polarity ±1 in bins lo and lo + 1; at the last bin (t* = B − 1),
+    lo = B − 2 and weights +0 and ±1. `bins` >= 2."""
     scale = (bins - 1) / max(1, span_us - 1)
     last = bins - 1
     for d in range(len(lo_at)):
         lo, w = _bin_of(d, scale)
+        if lo == last:
+            lo, w = last - 1, np.float32(1)
         lo_at[d] = lo * hw
         for on in range(2):
             v = np.float32(2 * on - 1)
             w_lo[2 * d + on] = v - v * w
-            w_hi[2 * d + on] = v * w if lo < last else np.float32(0)
+            w_hi[2 * d + on] = v * w
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _voxel_add_table(out, pix, on, dt, base, hw, w_lo, w_hi):
     """`_voxel_add` through the table: `base` = lo_at[dt], the event's lower bin's offset."""
     e = ix(2 * dt + on)
-    out[ix(base + pix)] += w_lo[e]
-    w = w_hi[e]
-    if w != 0:
-        out[ix(base + hw + pix)] += w
+    k = ix(base + pix)
+    out[k] += w_lo[e]
+    out[k + ix(hw)] += w_hi[e]
+
+
+@njit(cache=True, nogil=True)
+def _zero_for(t, t_start, hw, lo_at, out, ready):
+    """`_zero_bins` for events at times `t` (in the window): the bins up to the one after the latest
+    event's lower bin. Returns `ready`."""
+    if len(t) == 0:
+        return ready
+    end = lo_at[ix(t.max() - t_start)] + 2 * hw
+    return _zero_bins(out, ready, end) if end > ready else ready
 
 
 @njit(cache=True, nogil=True)
 def voxel_table_kernel(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, out, ready):
     """`voxel_kernel` through the table of the window's span (`voxel_table`)."""
+    ready = _zero_for(buf_t, t_start, hw, lo_at, out, ready)
     for j in range(len(buf_t)):
         f = np.intp(buf_f[j])
         on = np.intp(f >= hw)
         dt = buf_t[j] - t_start
-        base = lo_at[ix(dt)]  # dt in [0, span): the event is in the window
-        if base + hw >= ready:
-            ready = _zero_bins(out, ready, base + 2 * hw)
-        _voxel_add_table(out, f - hw * on, on, dt, base, hw, w_lo, w_hi)
+        _voxel_add_table(out, f - hw * on, on, dt, lo_at[ix(dt)], hw, w_lo, w_hi)  # dt in [0, span)
     return ready
 
 
 @njit(cache=True, nogil=True)
 def voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_lo, w_hi, out, ready):
     """`voxel_of_chunk` through the table of the window's span (`voxel_table`)."""
+    ready = _zero_for(t, t_start, hw, lo_at, out, ready)
     for j in range(len(t)):
         if use_cls and cls[j] != 0:
             continue
         dt = t[j] - t_start
-        base = lo_at[ix(dt)]
-        if base + hw >= ready:
-            ready = _zero_bins(out, ready, base + 2 * hw)
-        _voxel_add_table(out, np.intp(y[j]) * width + np.intp(x[j]), np.intp(p[j]), dt, base, hw, w_lo, w_hi)
+        _voxel_add_table(out, np.intp(y[j]) * width + np.intp(x[j]), np.intp(p[j]), dt, lo_at[ix(dt)], hw, w_lo,
+                         w_hi)
     return ready
 
 
@@ -222,6 +236,7 @@ def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_
                          ready):
     """`accumulate` (the frame's saturating counts of the counted events [a, b)) and `voxel_table_of_chunk`
     over the same events, in one pass. Returns (how many counted, `ready`)."""
+    ready = _zero_for(t[a:b], t_start, hw, lo_at, out, ready)
     added = 0
     for k in range(a, b):
         i = ix(k)
@@ -234,10 +249,7 @@ def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_
             counts[f] += 1
         added += 1
         dt = t[i] - t_start
-        base = lo_at[ix(dt)]
-        if base + hw >= ready:
-            ready = _zero_bins(out, ready, base + 2 * hw)
-        _voxel_add_table(out, pix, on, dt, base, hw, w_lo, w_hi)
+        _voxel_add_table(out, pix, on, dt, lo_at[ix(dt)], hw, w_lo, w_hi)
     return added, ready
 
 
@@ -245,16 +257,14 @@ def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_
 def voxel_count_flat(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, counts, out, ready):
     """`add_flat` (saturating counts) and `voxel_table_kernel` over the same buffered events, in one pass.
     Returns `ready`."""
+    ready = _zero_for(buf_t, t_start, hw, lo_at, out, ready)
     for j in range(len(buf_t)):
         f = np.intp(buf_f[j])
-        if counts[f] != COUNT_MAX:
-            counts[f] += 1
+        if counts[ix(f)] != COUNT_MAX:
+            counts[ix(f)] += 1
         on = np.intp(f >= hw)
         dt = buf_t[j] - t_start
-        base = lo_at[ix(dt)]
-        if base + hw >= ready:
-            ready = _zero_bins(out, ready, base + 2 * hw)
-        _voxel_add_table(out, f - hw * on, on, dt, base, hw, w_lo, w_hi)
+        _voxel_add_table(out, f - hw * on, on, dt, lo_at[ix(dt)], hw, w_lo, w_hi)
     return ready
 
 
@@ -777,8 +787,8 @@ class VoxelGrid(RepresentationFramer):
 
     def _table(self, span_us: int):
         """The arithmetic table of windows `span_us` long (`voxel_table`), for windows whose span is known
-        when they open (all of one span); None for fixed-count windows and spans over VOXEL_TABLE_MAX_US."""
-        if self.window == "fn" or span_us > VOXEL_TABLE_MAX_US:
+        when they open (all of one span); None for fixed-count windows, spans over VOXEL_TABLE_MAX_US and one bin."""
+        if self.window == "fn" or span_us > VOXEL_TABLE_MAX_US or self.bins < 2:
             return None
         if self._tab_span != span_us:
             lo_at = np.empty(span_us, np.intp)
