@@ -15,12 +15,17 @@ A killed process leaves its temporary where it was (`TARGET.part`): what it wrot
 untouched. A run cut short on purpose (Ctrl-C in a file command) closes its output properly and sets it
 aside (`set_aside`) as `STEM.partial.EXT` (`STEM.partial.N.EXT` when taken): readable by every tool that
 reads EXT, named so that nobody takes it for the whole output; the target is left as it was, or absent.
+
+A target that is a device or a named pipe (`--json /dev/null`, `/dev/stdout`, a FIFO another process reads)
+is written into, as `cp` does: there is no file to keep, and a rename would put a regular file in its place
+(as root, over /dev/null itself).
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import stat
 import weakref
 from pathlib import Path
 
@@ -102,6 +107,15 @@ def cannot_write(target, e: OSError) -> OSError:
     return error
 
 
+def _is_special(path: Path) -> bool:
+    """`path` (through its links) is there and is neither a regular file nor a folder: a device, a pipe."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
 def _create_part(target: Path, folder: bool = False) -> Path:
     """A new, empty file (or `folder`) beside `target` that did not exist before (O_EXCL, mkdir): TARGET.part,
     TARGET.1.part, ..."""
@@ -158,13 +172,15 @@ class AtomicOutput:
         check_not_input(self.target, self.inputs, flag)
         if self.target.is_dir():
             raise IsADirectoryError(f"{flag}{self.target}: is a directory")
-        self.part = _create_part(self.target)
+        self.direct = _is_special(self.target)  # a device or a pipe: written into, never renamed over
+        self.part = self.target if self.direct else _create_part(self.target)
         self.kept: Path | None = None  # the partial output, when a failure kept it
         self.done = False
 
     def commit(self) -> Path:
         """Put the whole output in place: flush it to the disk, then rename it onto the target."""
-        if self.done:
+        if self.done or self.direct:
+            self.done = True
             return self.target
         check_not_input(self.target, self.inputs)  # a link made to an input meanwhile
         try:
@@ -212,7 +228,8 @@ class AtomicOutput:
         new name, `partial_name(target)` (created by a hard link, so never over an existing file), and leave
         the target as it was. Where hard links are not possible the output stays at `part`. Returns where
         it is."""
-        if self.done:
+        if self.done or self.direct:
+            self.done = True
             return self.kept or self.target
         self.done = True
         self.kept = self.part
@@ -232,7 +249,8 @@ class AtomicOutput:
     def discard(self, keep: bool | None = None) -> Path | None:
         """Remove the temporary (or keep it when `keep`, default `keep_partial`, and it holds bytes);
         returns the kept path or None. The target is not touched."""
-        if self.done:
+        if self.done or self.direct:  # a device's bytes are gone, and the device must stay
+            self.done = True
             return self.kept
         self.done = True
         keep = self.keep_partial if keep is None else keep

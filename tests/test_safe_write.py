@@ -5,6 +5,7 @@ naming the file, with nothing left under its name."""
 
 import os
 import shutil
+import stat
 import subprocess
 import sys
 import time
@@ -448,3 +449,37 @@ def test_subscribe_archive_in_a_read_only_folder_fails_at_start(read_only, capsy
     assert rc == 1
     assert one_line_error(err) == (f"evstream: error: --archive {template}: cannot write in {read_only}: "
                                    "Read-only file system")
+
+
+
+@pytest.mark.parametrize("command", [["convert", SHIPPED, "{out}.raw"], ["archive", SHIPPED, "{out}.mcap"],
+                                     ["replay", SHIPPED, "--save", "{out}.rrd"],
+                                     ["eval", SHIPPED, "--methods", "stcf", "--ratios", "0.5", "--seeds", "1",
+                                      "--json", "{out}.json"]], ids=["convert", "archive", "replay", "eval"])
+def test_an_output_that_is_a_device_is_written_into_not_replaced(tmp_path, capsys, command):
+    """`eval --json /dev/null` (as root) renamed a regular file over /dev/null: the temporary went into /dev and
+    was renamed onto the device. A character device (a /dev/null made here) is now written into, as `cp`
+    does, and stays a device; nothing is left beside it."""
+    argv = [str(a).format(out=tmp_path / "null") for a in command]
+    device = Path(argv[-1])
+    try:
+        os.mknod(device, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    except PermissionError:
+        pytest.skip("no permission to make a character device here (needs root)")
+    rc, _, err = run(argv, capsys)
+    assert rc == 0, err
+    assert device.is_char_device() and os.listdir(tmp_path) == [device.name]
+
+
+def test_eval_rows_into_a_named_pipe_reach_its_reader(tmp_path, capsys):
+    """`--json FIFO` replaced the pipe with a file, and its reader never had a byte."""
+    fifo = tmp_path / "rows.json"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader is there: the writer's open does not wait
+    try:
+        rc, _, err = run(["eval", SHIPPED, "--methods", "stcf", "--ratios", "0.5", "--seeds", "1", "--json", fifo],
+                         capsys)
+        assert rc == 0, err
+        assert fifo.is_fifo() and b'"stcf"' in os.read(reader, 1 << 16)  # one small document: in the pipe's buffer
+    finally:
+        os.close(reader)
