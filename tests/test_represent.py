@@ -294,8 +294,8 @@ def voxel_table_plain(span_us, bins, hw):
         w = np.float32(tn - lo)
         if lo == bins - 1:  # the last bin: as bins B − 2 (+0) and B − 1 (all of v)
             lo, w = bins - 2, np.float32(1)
-        lo_at.append(lo * hw)
-        for v in (np.float32(-1), np.float32(1)):
+        for on, v in ((0, np.float32(-1)), (1, np.float32(1))):
+            lo_at.append((lo - on) * hw)  # + the flat index on·H·W + pix: the offset in bin lo
             w_lo.append(float(v - v * w))
             w_hi.append(float(v * w))
     return lo_at, w_lo, w_hi
@@ -311,7 +311,7 @@ def test_voxel_table_kernels_are_the_arithmetic_kernels_to_the_bit(seed, n, bins
     t, x, y, p, cls = random_events(rng, n, width, height)
     t_start = 100
     span = int(t[-1]) - t_start + 1 + int(rng.integers(0, 5)) if n else int(rng.integers(1, 9))
-    lo_at, w_lo, w_hi = np.empty(span, np.intp), np.empty(2 * span, np.float32), np.empty(2 * span, np.float32)
+    lo_at, w_lo, w_hi = np.empty(2 * span, np.intp), np.empty(2 * span, np.float32), np.empty(2 * span, np.float32)
     voxel_table(span, bins, hw, lo_at, w_lo, w_hi)
     assert (lo_at.tolist(), w_lo.tolist(), w_hi.tolist()) == voxel_table_plain(span, bins, hw)
 
@@ -485,7 +485,7 @@ def test_an_overlapping_windows_part_of_a_chunk_in_one_call_matches_plain_python
     assert (*got, counts.tolist(), buf_t.tolist(), buf_f.tolist()) == want
 
     span = end - t_start
-    lo_at, w_lo, w_hi = np.empty(span, np.intp), np.empty(2 * span, np.float32), np.empty(2 * span, np.float32)
+    lo_at, w_lo, w_hi = np.empty(2 * span, np.intp), np.empty(2 * span, np.float32), np.empty(2 * span, np.float32)
     voxel_table(span, bins, hw, lo_at, w_lo, w_hi)
 
     def take(out, ready):

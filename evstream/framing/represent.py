@@ -53,7 +53,7 @@ WINDOW_PARAMS = ("window_us", "stride_us", "n_events", "max_window_us", "n_base"
 NEVER_US = -(1 << 62)  # "no event yet": exp(−(t − NEVER_US)/τ) is exactly 0 for any τ we accept
 MAX_TAU_US = 1 << 40
 REBASE_US = 1 << 30  # time surface: int32 times move their base once an event is this far past it
-VOXEL_TABLE_MAX_US = 1 << 16  # voxel grid: the largest window span given a table (24 bytes per µs)
+VOXEL_TABLE_MAX_US = 1 << 16  # voxel grid: the largest window span given a table (32 bytes per µs)
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,27 +169,28 @@ def voxel_of_chunk(t, x, y, p, cls, use_cls, t_start, t_end, bins, width, hw, ou
 # then has no test and no call (with them, numba kept half the loop's values on the stack).
 @njit(cache=True, nogil=True)
 def voxel_table(span_us, bins, hw, lo_at, w_lo, w_hi):
-    """For each dt in [0, span_us): lo_at[dt] = lo·H·W (lo = ⌊t*⌋, t* = dt·scale as in `voxel_kernel`)
-    and, at 2·dt + on, the weights of polarity ±1 in bins lo and lo + 1; at the last bin (t* = B − 1),
-    lo = B − 2 and weights +0 and ±1. `bins` >= 2."""
+    """For each dt in [0, span_us) and polarity `on`, at e = 2·dt + on: lo_at[e] = lo·H·W − on·H·W (lo =
+    ⌊t*⌋, t* = dt·scale as in `voxel_kernel`), so that lo_at[e] + f is the grid offset of an event of
+    flat index f = on·H·W + y·W + x in bin lo; w_lo[e] and w_hi[e] the weights of polarity ±1 in bins lo
+    and lo + 1. At the last bin (t* = B − 1): lo = B − 2 and weights +0 and ±1. `bins` >= 2."""
     scale = (bins - 1) / max(1, span_us - 1)
     last = bins - 1
-    for d in range(len(lo_at)):
+    for d in range(span_us):
         lo, w = _bin_of(d, scale)
         if lo == last:
             lo, w = last - 1, np.float32(1)
-        lo_at[d] = lo * hw
         for on in range(2):
             v = np.float32(2 * on - 1)
+            lo_at[2 * d + on] = (lo - on) * hw
             w_lo[2 * d + on] = v - v * w
             w_hi[2 * d + on] = v * w
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _voxel_add_table(out, pix, on, dt, base, hw, w_lo, w_hi):
-    """`_voxel_add` through the table: `base` = lo_at[dt], the event's lower bin's offset."""
+def _voxel_add_table(out, f, on, dt, hw, lo_at, w_lo, w_hi):
+    """`_voxel_add` through the table, for an event of flat index f = on·H·W + y·W + x at dt in the window."""
     e = ix(2 * dt + on)
-    k = ix(base + pix)
+    k = ix(lo_at[e] + f)
     out[k] += w_lo[e]
     out[k + ix(hw)] += w_hi[e]
 
@@ -200,7 +201,7 @@ def _zero_for(t, t_start, hw, lo_at, out, ready):
     event's lower bin. Returns `ready`."""
     if len(t) == 0:
         return ready
-    end = lo_at[ix(t.max() - t_start)] + 2 * hw
+    end = lo_at[ix(2 * (t.max() - t_start))] + 2 * hw
     return _zero_bins(out, ready, end) if end > ready else ready
 
 
@@ -210,9 +211,7 @@ def voxel_table_kernel(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, out, ready)
     ready = _zero_for(buf_t, t_start, hw, lo_at, out, ready)
     for j in range(len(buf_t)):
         f = np.intp(buf_f[j])
-        on = np.intp(f >= hw)
-        dt = buf_t[j] - t_start
-        _voxel_add_table(out, f - hw * on, on, dt, lo_at[ix(dt)], hw, w_lo, w_hi)  # dt in [0, span)
+        _voxel_add_table(out, f, np.intp(f >= hw), buf_t[j] - t_start, hw, lo_at, w_lo, w_hi)  # dt in [0, span)
     return ready
 
 
@@ -223,8 +222,8 @@ def voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_
     for j in range(len(t)):
         if use_cls and cls[j] != 0:
             continue
-        dt = t[j] - t_start
-        _voxel_add_table(out, np.intp(y[j]) * width + np.intp(x[j]), np.intp(p[j]), dt, lo_at[ix(dt)], hw, w_lo,
+        on = np.intp(p[j])
+        _voxel_add_table(out, on * hw + np.intp(y[j]) * width + np.intp(x[j]), on, t[j] - t_start, hw, lo_at, w_lo,
                          w_hi)
     return ready
 
@@ -242,14 +241,12 @@ def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_
         i = ix(k)
         if use_cls and cls[i] != 0:
             continue
-        pix = np.intp(y[i]) * width + np.intp(x[i])
         on = np.intp(p[i])
-        f = ix(on * hw + pix)
-        if counts[f] != COUNT_MAX:
-            counts[f] += 1
+        f = on * hw + np.intp(y[i]) * width + np.intp(x[i])
+        if counts[ix(f)] != COUNT_MAX:
+            counts[ix(f)] += 1
         added += 1
-        dt = t[i] - t_start
-        _voxel_add_table(out, pix, on, dt, lo_at[ix(dt)], hw, w_lo, w_hi)
+        _voxel_add_table(out, f, on, t[i] - t_start, hw, lo_at, w_lo, w_hi)
     return added, ready
 
 
@@ -262,9 +259,7 @@ def voxel_count_flat(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, counts, out, 
         f = np.intp(buf_f[j])
         if counts[ix(f)] != COUNT_MAX:
             counts[ix(f)] += 1
-        on = np.intp(f >= hw)
-        dt = buf_t[j] - t_start
-        _voxel_add_table(out, f - hw * on, on, dt, lo_at[ix(dt)], hw, w_lo, w_hi)
+        _voxel_add_table(out, f, np.intp(f >= hw), buf_t[j] - t_start, hw, lo_at, w_lo, w_hi)
     return ready
 
 
@@ -791,7 +786,7 @@ class VoxelGrid(RepresentationFramer):
         if self.window == "fn" or span_us > VOXEL_TABLE_MAX_US or self.bins < 2:
             return None
         if self._tab_span != span_us:
-            lo_at = np.empty(span_us, np.intp)
+            lo_at = np.empty(2 * span_us, np.intp)
             w_lo, w_hi = np.empty(2 * span_us, np.float32), np.empty(2 * span_us, np.float32)
             voxel_table(span_us, self.bins, self._hw, lo_at, w_lo, w_hi)
             self._tab, self._tab_span = (lo_at, w_lo, w_hi), span_us
