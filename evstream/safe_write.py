@@ -29,7 +29,7 @@ import stat
 import weakref
 from pathlib import Path
 
-__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "cannot_write", "check_not_input",
+__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "cannot_write", "check_not_input", "is_special",
            "is_no_space", "no_space_error", "numbered_name", "partial_name", "reading"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
@@ -107,7 +107,7 @@ def cannot_write(target, e: OSError) -> OSError:
     return error
 
 
-def _is_special(path: Path) -> bool:
+def is_special(path: Path) -> bool:
     """`path` (through its links) is there and is neither a regular file nor a folder: a device, a pipe."""
     try:
         mode = os.stat(path).st_mode
@@ -172,7 +172,7 @@ class AtomicOutput:
         check_not_input(self.target, self.inputs, flag)
         if self.target.is_dir():
             raise IsADirectoryError(f"{flag}{self.target}: is a directory")
-        self.direct = _is_special(self.target)  # a device or a pipe: written into, never renamed over
+        self.direct = is_special(self.target)  # a device or a pipe: written into, never renamed over
         self.part = self.target if self.direct else _create_part(self.target)
         self.kept: Path | None = None  # the partial output, when a failure kept it
         self.done = False

@@ -142,6 +142,10 @@ def test_a_wrong_pipeline_file_names_the_mistake(tmp_path, capsys, toml, says):
     (["publish", SHIPPED, "--speed", "inf"], "--speed inf: must be >= 0"),
     (["subscribe", "evstream/*/events", "--geometry", "5x0"], "--geometry 5x0: Geometry.height must be"),
     (["subscribe", "evstream/*/events", "--flush-s", "0"], "--flush-s 0: must be positive"),
+    # a Rerun recording written as x.mcap or x.npz (a name that says another format; over a recording too)
+    (["replay", SHIPPED, "--save", "x.mcap"], "--save x.mcap: a Rerun recording's name ends in .rrd"),
+    (["replay", SHIPPED, "--save", "out/x.npz"], "--save out/x.npz: a Rerun recording's name ends in .rrd"),
+    (["subscribe", "evstream/*/events", "--save", "x"], "--save x: a Rerun recording's name ends in .rrd"),
 ])
 def test_a_flag_value_that_cannot_work_is_a_usage_error_naming_the_flag(tmp_path, capsys, monkeypatch, argv, says):
     monkeypatch.chdir(tmp_path)  # OUT.mcap, out/ land here if a check is missing

@@ -71,6 +71,16 @@ def not_the_input(source: str, out, flag: str, what: str = "the input recording"
         raise UsageError(str(e)) from None
 
 
+def check_rrd_name(save, flag: str = "--save ") -> None:
+    """A Rerun recording goes to a name ending in .rrd (or into a device, /dev/null): `--save x.mcap` wrote
+    one under a name that says MCAP, or over a recording `x.npz`."""
+    from evstream.safe_write import is_special
+
+    if save and Path(save).suffix.lower() != ".rrd" and not is_special(Path(save)):
+        raise UsageError(f"{flag}{save}: a Rerun recording's name ends in .rrd (an MCAP archive: evstream archive "
+                         "REC OUT.mcap; another recording format: evstream convert)")
+
+
 def check_numbers(args, *, at_least_zero=(), positive=()) -> None:
     """Flag values that cannot work are usage errors (exit 2), named as typed: `--speed -1: must be >= 0`.
     NaN and infinity are refused too (`--speed nan` used to replay as fast as possible)."""

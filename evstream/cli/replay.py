@@ -27,6 +27,7 @@ from .common import (
     add_source_flags,
     attach_framer,
     check_numbers,
+    check_rrd_name,
     create_folder,
     folder_note,
     not_the_input,
@@ -92,6 +93,7 @@ def cmd_replay(args) -> int:
         raise UsageError(f"--point-budget {args.point_budget}: must be >= 0 (0 = every event)")
     check_numbers(args, at_least_zero=("speed",), positive=("slab_ms",))
     not_the_input(args.source, args.save, "--save ")
+    check_rrd_name(args.save)
     source = open_recording(args.source, args, FAST_CHUNK_EVENTS if args.speed == 0 else None)
     pipeline = pipeline_from_args(args, source)
     attach_framer(pipeline, args)

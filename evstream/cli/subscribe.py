@@ -12,7 +12,15 @@ from pathlib import Path
 
 from ..events import NoiseClass
 from ..framing import options as framer_options
-from .common import StopOnSignal, UsageError, add_pipeline_flags, check_numbers, geometry_flag, rerun_command
+from .common import (
+    StopOnSignal,
+    UsageError,
+    add_pipeline_flags,
+    check_numbers,
+    check_rrd_name,
+    geometry_flag,
+    rerun_command,
+)
 from .live import CLEAN_KEY, add_zenoh_flags, check_endpoints, session_from_args, settle_memory
 from .subscriber import Camera, Status, Subscriber, print_summary, wait_readers, warm_up
 
@@ -32,6 +40,7 @@ def cmd_subscribe(args) -> int:
     viewer_flags = [o for o in ("save", "spawn", "serve", "viewer") if getattr(args, o)]
     if len(viewer_flags) > 1:
         raise UsageError(f"--{viewer_flags[0]} and --{viewer_flags[1]}: choose one place for the Rerun output")
+    check_rrd_name(args.save)
     if args.archive and not args.archive.endswith(".mcap"):
         raise UsageError(f"--archive {args.archive}: the archive's name must end in .mcap")
     if args.archive:  # its folder now, not at the first packet (which ended the node mid-stream)
