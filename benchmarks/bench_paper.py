@@ -3,19 +3,26 @@ numba BAF, per-call overhead, state memory and quality.
 
 Stream: a synthetic scene (turntable at 346×260 for 1 s, bar at 1280×720 for 0.3 s) with 3 Hz/pixel
 background activity and 0.1 % hot pixels at 500–2000 Hz; chunks of 10k and 100k events and one call.
-Every case of one sensor size runs in the same process, interleaved round by round; the best and the
-median CPU time (`time.process_time`) of each are reported, and the ratios from both: on a shared
-machine, time spent preempted is not ours.
+Each cell (a sensor size and a chunk size) runs in a fresh process: every case of the cell, ours and
+the peers', interleaved round by round in a shuffled order, beside a memory copy of the same chunks
+(the floor of reading the events); the best and the median CPU time (`time.process_time`) of each are
+reported, the ratios from both, and the load over the cell: on a shared machine, time spent preempted
+is not ours. A fresh process per cell: in one process for everything, the 1280×720 cascade ran up to
+~20 % slower after the 346×260 cells than alone (dv BAF up to ~10 %), varying from process to process
+(docs/method.md, "Throughput and memory").
 Peers, same events, same chunks: dv-processing's BackgroundActivityNoiseFilter (2 ms, its default and
 BAF's) and KNoiseFilter (C++, `pip install -e '.[bench]'`; skipped, saying why, when absent) and a plain
 branch-free numba BAF written here (the floor a BAF stage can reach).
 
-    python -m benchmarks paper           # the whole table (about 2 minutes on a quiet machine)
+    python -m benchmarks paper                          # the whole table (about 2 minutes on a quiet machine)
+    EVSTREAM_BENCH_PROCESSES=3 python -m benchmarks paper # each cell in 3 processes, their rounds pooled
 """
 
 from __future__ import annotations
 
+import json
 import os
+import sys
 import time
 
 import numpy as np
@@ -30,10 +37,12 @@ from evstream.events import EventChunk, Geometry
 from evstream.noise import NoiseSpec, inject
 from evstream.testing import state_nbytes
 
-from .common import best_cpu_s, cpu_s, noisy_scene, peak_alloc_bytes, report
+from .common import cpu_s, in_fresh_process, noisy_scene, peak_alloc_bytes, report
 
 CHUNKS = (10_000, 100_000, None)  # None: the whole stream in one call
 ROUNDS = int(os.environ.get("EVSTREAM_BENCH_ROUNDS", "5"))
+PROCESSES = int(os.environ.get("EVSTREAM_BENCH_PROCESSES", "1"))  # fresh processes per cell, rounds pooled
+SCENES = {"turntable": (Geometry(346, 260), 1_000_000), "bar": (Geometry(1280, 720), 300_000)}
 
 
 @njit(cache=True, nogil=True)
@@ -66,77 +75,95 @@ def pieces(n: int, chunk: int | None) -> list[tuple[int, int]]:
     return [(a, min(n, a + step)) for a in range(0, n, step)]
 
 
-def throughput_cases(s: EventChunk, store) -> dict:
-    """name -> a function running one fresh filter over the whole stream in the given chunks."""
+def chunk_label(chunk: int | None) -> str:
+    return f"{chunk // 1000}k" if chunk else "one call"
+
+
+def throughput_cases(s: EventChunk, store, chunk: int | None) -> dict:
+    """name -> a function running one fresh filter over the whole stream in chunks of `chunk` events."""
     if store is not None:
         import dv_processing as dv
     g, n = s.geometry, len(s)
-    cases = {}
-    for chunk in CHUNKS:
-        label = f"{chunk // 1000}k" if chunk else "one call"
-        bounds = pieces(n, chunk)
-        parts = [s[a:b] for a, b in bounds]
+    label = chunk_label(chunk)
+    bounds = pieces(n, chunk)
+    parts = [s[a:b] for a, b in bounds]
 
-        def stage(make, parts=parts):
-            def go():
-                f = make()
-                for p in parts:
-                    f(p)
-            return go
-
-        def plain(parts=parts):
-            last = np.full((g.height + 2, g.width + 2), NEVER_US, np.int64)
+    def stage(make):
+        def go():
+            f = make()
             for p in parts:
-                plain_baf(p.t, p.x, p.y, last, 2000, np.empty(len(p), np.uint8))
+                f(p)
+        return go
 
-        cases[f"cascade (paper), {label}"] = stage(PaperCascade)
-        cases[f"coarse (density) alone, {label}"] = stage(DensityFilter)
-        cases[f"fine (DC) alone, {label}"] = stage(TimeSeriesFilter)
-        cases[f"BAF stage, {label}"] = stage(BackgroundActivityFilter)
-        cases[f"plain numba BAF, {label}"] = plain
-        if store is not None:
-            slices = [store.slice(a, b - a) for a, b in bounds]
-            for name, make in (("dv BAF", lambda: dv.noise.BackgroundActivityNoiseFilter((g.width, g.height))),
-                               ("dv KNoise", lambda: dv.noise.KNoiseFilter((g.width, g.height)))):
-                def peer(make=make, slices=slices):
-                    f = make()
-                    for p in slices:
-                        f.accept(p)
-                        f.generateEvents()
-                cases[f"{name}, {label}"] = peer
-    return cases
+    def plain():
+        last = np.full((g.height + 2, g.width + 2), NEVER_US, np.int64)
+        for p in parts:
+            plain_baf(p.t, p.x, p.y, last, 2000, np.empty(len(p), np.uint8))
 
+    into = [np.empty(bounds[0][1], a.dtype) for a in (s.t, s.x, s.y, s.p)]
 
-def run() -> None:
-    for name, g, duration in [("turntable", Geometry(346, 260), 1_000_000), ("bar", Geometry(1280, 720), 300_000)]:
-        s = noisy_scene(name, g, duration)
-        n = len(s)
-        print(f"-- {name} {g}: {n:,} events, {n / (duration * 1e-6) / 1e6:.2f} M events/s of sensor time; "
-              f"best (and median) CPU time of {ROUNDS} interleaved rounds, load {os.getloadavg()[0]:.1f}; "
-              "ratios: from the best times / from the medians", flush=True)
-        store, why = dv_store(s)
-        if store is None:
-            print(f"   (dv-processing skipped: {why})")
-        cases = throughput_cases(s, store)
+    def copy():  # what reading every event of the chunks costs at least: their four arrays copied
+        for p in parts:
+            for a, out in zip((p.t, p.x, p.y, p.p), into):
+                np.copyto(out[: len(a)], a)
+
+    cases = {f"cascade (paper), {label}": stage(PaperCascade),
+             f"coarse (density) alone, {label}": stage(DensityFilter),
+             f"fine (DC) alone, {label}": stage(TimeSeriesFilter),
+             f"BAF stage, {label}": stage(BackgroundActivityFilter),
+             f"plain numba BAF, {label}": plain,
+             f"memory copy (t, x, y, p), {label}": copy}
+    if store is not None:
+        slices = [store.slice(a, b - a) for a, b in bounds]
+        for name, make in (("dv BAF", lambda: dv.noise.BackgroundActivityNoiseFilter((g.width, g.height))),
+                           ("dv KNoise", lambda: dv.noise.KNoiseFilter((g.width, g.height)))):
+            def peer(make=make):
+                f = make()
+                for p in slices:
+                    f.accept(p)
+                    f.generateEvents()
+            cases[f"{name}, {label}"] = peer
+    if chunk is None:
         # Control: the same events at evenly spaced times, so that each arrival expires exactly one event
         # and the expiry loop's exit is always predicted (docs/method.md, "Throughput").
         even = s.replace(t=np.linspace(int(s.t[0]), int(s.t[-1]), n).astype(np.int64))
-        cases["control: coarse, one call, evenly spaced times"] = lambda even=even: DensityFilter()(even)
-        times = cpu_s(cases, ROUNDS)
-        best = {case: min(t) for case, t in times.items()}
-        median = {case: float(np.median(t)) for case, t in times.items()}
+        cases["control: coarse, one call, evenly spaced times"] = lambda: DensityFilter()(even)
+    return cases
 
-        def vs(peer, case, best=best, median=median):  # the speed ratio, from the best times and the medians
-            return f"{best[peer] / best[case]:.2f}x / {median[peer] / median[case]:.2f}x"
 
-        for case, sec in best.items():
-            label = case.split(", ")[-1]
-            extra = {"median": f"{n / median[case] / 1e6:.1f}M"}
-            if case.startswith("cascade") and f"dv BAF, {label}" in best:
-                extra.update(vs_dv_BAF=vs(f"dv BAF, {label}", case), vs_dv_KNoise=vs(f"dv KNoise, {label}", case))
-            if case.startswith("BAF stage"):
-                extra.update(vs_plain_BAF=vs(f"plain numba BAF, {label}", case))
-            report(case, n / sec, **extra)
+def cell(name: str, chunk: int | None) -> dict:
+    """One cell, run in a fresh process: every case of `name`'s scene in chunks of `chunk`, ROUNDS
+    interleaved rounds in shuffled orders. CPU seconds per case, the load, the events, why the peers are
+    missing (or "")."""
+    g, duration = SCENES[name]
+    s = noisy_scene(name, g, duration)
+    store, why = dv_store(s)
+    cases = throughput_cases(s, store, chunk)
+    load = os.getloadavg()[0]
+    times = cpu_s(cases, ROUNDS, shuffle=True)
+    return {"n": len(s), "load": [load, os.getloadavg()[0]], "skipped": why, "times": times}
+
+
+def in_cells(*args) -> list[dict]:
+    """`args`' cell run in PROCESSES fresh processes, one after the other."""
+    return [in_fresh_process("benchmarks.bench_paper", *args) for _ in range(PROCESSES)]
+
+
+def run() -> None:
+    for name, (g, duration) in SCENES.items():
+        s = noisy_scene(name, g, duration)
+        n = len(s)
+        print(f"-- {name} {g}: {n:,} events, {n / (duration * 1e-6) / 1e6:.2f} M events/s of sensor time; each "
+              f"chunk size in {PROCESSES} fresh process(es), {ROUNDS} rounds each in shuffled orders; best (and "
+              "median) CPU time; ratios: from the best times / from the medians", flush=True)
+        for chunk in CHUNKS:
+            runs = in_cells("cell", name, chunk or 0)
+            times = {case: [t for r in runs for t in r["times"][case]] for case in runs[0]["times"]}
+            loads = [x for r in runs for x in r["load"]]
+            print(f"   {chunk_label(chunk)}: load {min(loads):.1f}–{max(loads):.1f}", flush=True)
+            if runs[0]["skipped"]:
+                print(f"   (dv-processing skipped: {runs[0]['skipped']})")
+            report_cell(times, n)
         for label, make in [("cascade (paper)", PaperCascade), ("coarse (density)", DensityFilter),
                             ("fine (DC)", TimeSeriesFilter)]:
             def whole(make=make, s=s):
@@ -146,21 +173,48 @@ def run() -> None:
 
             print(f"{label + ' state':<48} {state_nbytes(whole()) / g.n_pixels:9.1f} bytes/pixel  "
                   f"peak_alloc_MB={peak_alloc_bytes(whole) / 1e6:.1f}")
-    one_call_vs_chunked()
-    call_overhead()
+    print("-- one call against chunks: the turntable repeated to 10,000,000 events", flush=True)
+    runs = in_cells("long")
+    for case in runs[0]["times"]:
+        report(case, 10_000_000 / min(t for r in runs for t in r["times"][case]))
+    print(f"-- per-call cost, 1-event chunks (CPU µs per call; fresh process, load {os.getloadavg()[0]:.1f})",
+          flush=True)
+    for label, us in in_cells("calls")[0].items():
+        print(f"{label:<48} {us:9.2f} µs per call", flush=True)
+    print(f"-- classes only against classes and scores, 100k chunks at 346×260 (fresh process, load "
+          f"{os.getloadavg()[0]:.1f}): M events/s", flush=True)
+    for label, rates in in_cells("scores")[0].items():
+        report(label, rates[0], scored=f"{rates[1] / 1e6:.1f}M", classes_vs_scored=f"{rates[0] / rates[1]:.2f}x")
     quality()
 
 
-def one_call_vs_chunked(n_events: int = 10_000_000) -> None:
+def report_cell(times: dict[str, list[float]], n: int) -> None:
+    """One cell's rows: M events/s from the best time, the median's, and the ratios to the peers."""
+    best = {case: min(t) for case, t in times.items()}
+    median = {case: float(np.median(t)) for case, t in times.items()}
+
+    def vs(peer, case):  # the speed ratio, from the best times and the medians
+        return f"{best[peer] / best[case]:.2f}x / {median[peer] / median[case]:.2f}x"
+
+    for case, sec in best.items():
+        label = case.split(", ")[-1]
+        extra = {"median": f"{n / median[case] / 1e6:.1f}M"}
+        if case.startswith("cascade") and f"dv BAF, {label}" in best:
+            extra.update(vs_dv_BAF=vs(f"dv BAF, {label}", case), vs_dv_KNoise=vs(f"dv KNoise, {label}", case))
+        if case.startswith("BAF stage"):
+            extra.update(vs_plain_BAF=vs(f"plain numba BAF, {label}", case))
+        report(case, n / sec, **extra)
+
+
+def long_call(n_events: int = 10_000_000) -> dict:
     """A fresh cascade fed one 10 M-event chunk against the same events in 100k chunks (the fine stage's
-    FIFO grows from 4,096 entries within the call)."""
-    g, duration = Geometry(346, 260), 1_000_000
+    FIFO grows within the call), CPU seconds of interleaved rounds."""
+    g, duration = SCENES["turntable"]
     base = noisy_scene("turntable", g, duration)
     reps = -(-n_events // len(base))
     s = EventChunk.from_arrays(np.concatenate([base.t + k * duration for k in range(reps)])[:n_events],
                                np.tile(base.x, reps)[:n_events], np.tile(base.y, reps)[:n_events],
                                np.tile(base.p, reps)[:n_events], g)
-    print(f"-- one call against chunks: the turntable repeated to {len(s):,} events", flush=True)
 
     def chunked(make):
         def go():
@@ -169,17 +223,16 @@ def one_call_vs_chunked(n_events: int = 10_000_000) -> None:
                 f(s[a : a + 100_000])
         return go
 
-    best = best_cpu_s({"cascade (paper), one 10 M-event call": lambda: PaperCascade()(s),
-                       "cascade (paper), 100k chunks": chunked(PaperCascade),
-                       "fine (DC) alone, one 10 M-event call": lambda: TimeSeriesFilter()(s),
-                       "fine (DC) alone, 100k chunks": chunked(TimeSeriesFilter)}, max(2, ROUNDS // 2))
-    for case, sec in best.items():
-        report(case, len(s) / sec)
+    times = cpu_s({"cascade (paper), one 10 M-event call": lambda: PaperCascade()(s),
+                   "cascade (paper), 100k chunks": chunked(PaperCascade),
+                   "fine (DC) alone, one 10 M-event call": lambda: TimeSeriesFilter()(s),
+                   "fine (DC) alone, 100k chunks": chunked(TimeSeriesFilter)}, max(2, ROUNDS // 2), shuffle=True)
+    return {"times": times}
 
 
-def call_overhead(calls: int = 20_000) -> None:
-    """CPU time of one stage call on a 1-event chunk (what a stage costs beyond its kernel's work),
-    beside a plain numba call with the BAF kernel's six arguments."""
+def call_overhead(calls: int = 20_000) -> dict:
+    """CPU µs of one stage call on a 1-event chunk (what a stage costs beyond its kernel's work), beside a
+    plain numba call with the BAF kernel's six arguments."""
     g = Geometry(346, 260)
     warm = noisy_scene("turntable", g, 20_000)
     one = warm[len(warm) - 1 :]
@@ -188,7 +241,7 @@ def call_overhead(calls: int = 20_000) -> None:
     def plain(c):
         plain_baf(c.t, c.x, c.y, last, 2000, np.empty(len(c), np.uint8))
 
-    print("-- per-call cost, 1-event chunks (CPU µs per call)", flush=True)
+    out = {}
     for label, f in [("cascade (paper)", PaperCascade()), ("coarse (density)", DensityFilter()),
                      ("fine (DC)", TimeSeriesFilter()), ("BAF stage", BackgroundActivityFilter()),
                      ("plain numba BAF call", plain)]:
@@ -199,7 +252,30 @@ def call_overhead(calls: int = 20_000) -> None:
             for _ in range(calls):
                 f(one)
             best = min(best, (time.process_time() - t0) / calls)
-        print(f"{label:<48} {best * 1e6:9.2f} µs per call", flush=True)
+        out[label] = best * 1e6
+    return out
+
+
+def scores() -> dict:
+    """The stages with a score: a class-only call (the stage as a pipeline runs it) against
+    `classify_scored` on the same 100k chunks, fresh stages, interleaved: [classes only, scored] events/s."""
+    from evstream.pipeline import factory
+
+    g, duration = SCENES["turntable"]
+    s = noisy_scene("turntable", g, duration)
+    parts = [s[a:b] for a, b in pieces(len(s), 100_000)]
+    kinds = ("refractory", "ynoise", "khodamoradi", "hotpixel", "dwf", "baf", "stcf")
+
+    def run(kind, scored):
+        def go():
+            f = factory("stage", kind)()
+            for p in parts:
+                f.classify_scored(p) if scored else f(p)
+        return go
+
+    cases = {(kind, scored): run(kind, scored) for kind in kinds for scored in (False, True)}
+    times = cpu_s({f"{k} {sc}": fn for (k, sc), fn in cases.items()}, ROUNDS, shuffle=True)
+    return {kind: [len(s) / min(times[f"{kind} False"]), len(s) / min(times[f"{kind} True"])] for kind in kinds}
 
 
 def quality() -> None:
@@ -244,5 +320,11 @@ def quality() -> None:
                   f"50-200 Hz {frac(slow)}")
 
 
-if __name__ == "__main__":
-    run()
+CHILDREN = {"cell": lambda name, chunk: cell(name, int(chunk) or None), "long": long_call,
+            "calls": call_overhead, "scores": scores}
+
+if __name__ == "__main__":  # `python -m benchmarks.bench_paper CELL ARGS`: one cell, its JSON on the last line
+    if len(sys.argv) > 1:
+        print(json.dumps(CHILDREN[sys.argv[1]](*sys.argv[2:])))
+    else:
+        run()

@@ -3,6 +3,8 @@ event layout, and `evstream` commands run as processes."""
 
 from __future__ import annotations
 
+import json
+import random
 import resource
 import socket
 import subprocess
@@ -59,14 +61,19 @@ def report(name: str, rate_hz: float, **extra) -> None:
     print(f"{name:<48} {rate_hz / 1e6:9.1f} M events/s  {more}", flush=True)
 
 
-def cpu_s(cases: dict[str, Callable[[], object]], rounds: int) -> dict[str, list[float]]:
+def cpu_s(cases: dict[str, Callable[[], object]], rounds: int, shuffle: bool = False) -> dict[str, list[float]]:
     """Each case's CPU times over `rounds` interleaved rounds, after one warm-up run each (numba compiles).
-    CPU time: on a shared machine, time spent preempted is not ours."""
+    CPU time: on a shared machine, time spent preempted is not ours. `shuffle`: each round in its own
+    order (seeded), so that no case always runs after the same other one (which leaves the caches and
+    the allocator's free lists as it leaves them)."""
     times: dict[str, list[float]] = {name: [] for name in cases}
     for fn in cases.values():
         fn()
-    for _ in range(rounds):
-        for name, fn in cases.items():
+    order = list(cases.items())
+    for r in range(rounds):
+        if shuffle:
+            random.Random(r).shuffle(order)
+        for name, fn in order:
             t0 = time.process_time()
             fn()
             times[name].append(time.process_time() - t0)
@@ -76,6 +83,17 @@ def cpu_s(cases: dict[str, Callable[[], object]], rounds: int) -> dict[str, list
 def best_cpu_s(cases: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
     """Each case's best CPU time over `rounds` interleaved rounds (`cpu_s`)."""
     return {name: min(t) for name, t in cpu_s(cases, rounds).items()}
+
+
+def in_fresh_process(module: str, *args) -> object:
+    """`python -m MODULE ARGS` in a fresh interpreter (a benchmark's cell), returning the JSON of its last line
+    of output: each cell then starts from the same state (heap, free lists, caches, kernels loaded), whatever
+    cells ran before it."""
+    argv = [sys.executable, "-m", module, *map(str, args)]
+    done = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True)
+    if done.returncode:
+        raise RuntimeError(f"{' '.join(argv[2:])}: exit {done.returncode}: {done.stderr.strip()[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def tonic_events(stream) -> tuple[np.ndarray, tuple[int, int, int]]:
