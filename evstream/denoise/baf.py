@@ -76,6 +76,17 @@ class BackgroundActivityFilter(ScoredClassifier):
     def _allocate(self, g):
         self._last = np.full((g.height + 2, g.width + 2), NEVER_US, np.int64)
 
+    def __call__(self, chunk: EventChunk) -> EventChunk:
+        """`Classifier.__call__`, the short way for an unclassified chunk whose geometry is the very object
+        the state was made for (a stream's chunks share one): the kernel, then the result chunk. A call
+        on a 1-event chunk 2.2 -> 1.6 µs (a plain numba call 0.7). The kernel is called as it is: it has
+        no ahead-of-time function (no command runs it), and `jit.bind` would cost 0.2 µs more than it saves."""
+        if chunk.cls is not None or chunk.geometry is not self._geometry:
+            return super().__call__(chunk)
+        out = np.empty(len(chunk), np.uint8)
+        baf_kernel(chunk.t, chunk.x, chunk.y, self._last, self.tau_us, out)
+        return chunk.with_classes(out)
+
     def classify(self, chunk: EventChunk) -> np.ndarray:
         self._ensure_state(chunk)
         out = np.empty(len(chunk), np.uint8)
