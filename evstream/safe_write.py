@@ -29,8 +29,8 @@ import stat
 import weakref
 from pathlib import Path
 
-__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "cannot_write", "check_not_input", "is_special",
-           "is_no_space", "no_space_error", "numbered_name", "partial_name", "reading"]
+__all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "cannot_write", "check_not_input",
+           "is_no_space", "is_special", "no_space_error", "numbered_name", "partial_name", "reading"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
