@@ -6,9 +6,13 @@ y + r starting at column x (`row_add`); the L×L box count around (x, y) is the 
 padded column x + r from row y (`column_sum`). Both the coarse (density) and the fine (DC) stage keep
 their exact neighbourhood counts this way.
 
-`row_add` does its L cells as one unaligned read-modify-write of a 32-byte vector (8 int32 lanes or
-16 uint16 lanes): on the density filter this alone took 48 to 57 M events/s at 346×260. The map must
-therefore have one vector's worth of cells after its last row (`padded_map` adds them).
+`row_add` does the L cells as one unaligned read-modify-write of a vector (on the density filter
+this alone took 48 to 57 M events/s at 346×260) of the fewest cells, a power of two, that hold L (at
+most 32 bytes; wider rows take several): 8 uint16 cells (16 bytes) for L = 5, not 16. A wider vector
+reaches past the L cells into the next cache line more often, and over a map larger than the cache that
+line is one more miss (32 bytes against 16 and 8 for the fine stage: cascade at 1280×720 1.6–1.8 ns per
+event slower). The map must have one 32-byte vector's worth of cells after its last row (`padded_map`
+adds them).
 """
 
 from __future__ import annotations
@@ -32,38 +36,45 @@ def padded_map(width: int, height: int, radius: int, dtype, planes: int = 1) -> 
     return np.zeros(planes * (height + 2 * radius) * (width + 2 * radius) + lanes(dtype), dtype)
 
 
-@intrinsic
-def _add_lanes(typingctx, a, pos, delta, n):
-    """a[pos : pos + n] += delta, n <= lanes, as one unaligned vector load, add and store."""
-    from llvmlite import ir  # typing time: numba is loaded (evstream.jit)
-    from numba.core import types
+def _vector_add(cells: int):
+    """An intrinsic `add(a, pos, delta, n)`: a[pos : pos + n] += delta for n <= the vector's cells, as one
+    unaligned load, add and store of a vector of `cells` cells (fewer if that passes VECTOR_BYTES)."""
 
-    if not (isinstance(a, types.Array) and a.layout == "C" and isinstance(a.dtype, types.Integer)):
-        return None
-    dtype = a.dtype
-    width = VECTOR_BYTES // (dtype.bitwidth // 8)
-    sig = types.void(a, types.intp, dtype, types.intp)
+    def add(typingctx, a, pos, delta, n):
+        from llvmlite import ir  # typing time: numba is loaded (evstream.jit)
+        from numba.core import types
 
-    def codegen(context, builder, signature, args):
-        ary, p, d, k = args
-        data = context.make_array(signature.args[0])(context, builder, ary).data
-        cell = context.get_value_type(dtype)
-        vec = ir.VectorType(cell, width)
-        ptr = builder.bitcast(builder.gep(data, [p]), vec.as_pointer())
-        zero = ir.Constant(cell, 0)
-        step = ir.Constant(vec, [0] * width)
-        for lane in range(width):  # [delta] * n + [0] * (width - n); folds when n is a constant
-            on = builder.icmp_signed(">", k, ir.Constant(k.type, lane))
-            step = builder.insert_element(step, builder.select(on, d, zero), ir.Constant(ir.IntType(32), lane))
-        builder.store(builder.add(builder.load(ptr, align=1), step), ptr, align=1)
-        return context.get_dummy_value()
+        if not (isinstance(a, types.Array) and a.layout == "C" and isinstance(a.dtype, types.Integer)):
+            return None
+        dtype = a.dtype
+        width = min(cells, VECTOR_BYTES // (dtype.bitwidth // 8))
 
-    return sig, codegen
+        def codegen(context, builder, signature, args):
+            ary, p, d, k = args
+            data = context.make_array(signature.args[0])(context, builder, ary).data
+            cell = context.get_value_type(dtype)
+            vec = ir.VectorType(cell, width)
+            ptr = builder.bitcast(builder.gep(data, [p]), vec.as_pointer())
+            zero = ir.Constant(cell, 0)
+            step = ir.Constant(vec, [0] * width)
+            for lane in range(width):  # [delta] * n + [0] * (width - n); folds when n is a constant
+                on = builder.icmp_signed(">", k, ir.Constant(k.type, lane))
+                step = builder.insert_element(step, builder.select(on, d, zero), ir.Constant(ir.IntType(32), lane))
+            builder.store(builder.add(builder.load(ptr, align=1), step), ptr, align=1)
+            return context.get_dummy_value()
+
+        return types.void(a, types.intp, dtype, types.intp), codegen
+
+    add.__name__ = add.__qualname__ = f"_add_{cells}"
+    return intrinsic(add)
+
+
+_add_4, _add_8, _add_16, _add_32 = (_vector_add(c) for c in (4, 8, 16, 32))
 
 
 @intrinsic
 def _lanes_of(typingctx, a):
-    """Cells per vector of `a`'s dtype, as a compile-time constant (`a.itemsize` is read at run time)."""
+    """Cells per VECTOR_BYTES vector of `a`'s dtype, as a compile-time constant (`a.itemsize` is read at run time)."""
     from numba.core import types
 
     width = VECTOR_BYTES // (a.dtype.bitwidth // 8)
@@ -76,13 +87,22 @@ def _lanes_of(typingctx, a):
 
 @njit(cache=True, nogil=True, inline="always")
 def row_add(a, pos, delta, L):
-    """a[pos : pos + L] += delta (vector by vector; `a` needs one vector of cells after pos + L)."""
+    """a[pos : pos + L] += delta, in vectors of the fewest cells, a power of two, that hold L (at most
+    VECTOR_BYTES each; `a` needs one such vector of cells after pos + L). The tests on L fold away when L is
+    a compile-time constant, as in the stages' kernels."""
     width = _lanes_of(a)
-    if L <= width:  # the usual case (L <= 8); the test folds away when L is a compile-time constant
-        _add_lanes(a, pos, delta, L)
+    if L <= width:
+        if L <= 4:
+            _add_4(a, pos, delta, L)
+        elif L <= 8:
+            _add_8(a, pos, delta, L)
+        elif L <= 16:
+            _add_16(a, pos, delta, L)
+        else:
+            _add_32(a, pos, delta, L)
     else:
         for k in range(0, L, width):
-            _add_lanes(a, pos + k, delta, min(width, L - k))
+            _add_32(a, pos + k, delta, min(width, L - k))
 
 
 @njit(cache=True, nogil=True, inline="always")
