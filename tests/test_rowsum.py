@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from evstream.denoise.rowsum import column_sum, lanes, padded_map, row_add
 from evstream.jit import Kernel, njit  # numba's own njit cannot type the kernels inside until evstream.jit taught it
 
