@@ -228,8 +228,9 @@ def voxel_table_of_chunk(t, x, y, p, cls, use_cls, t_start, width, hw, lo_at, w_
     return ready
 
 
-# Overlapping windows count their events for the frame and add them to the voxel grid in one pass: the
-# events are read once, while in cache (two passes measured ~1.4 ns an event more).
+# Fixed time and overlapping windows count their events for the frame as they add them to the voxel grid.
+# A chunk's events in one pass (each flat index computed once; two passes measured ~15 % slower over
+# fixed time windows); buffered events, whose flat indices are at hand, in two (~3 % faster).
 @njit(cache=True, nogil=True)
 def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_at, w_lo, w_hi, counts, out,
                          ready):
@@ -252,15 +253,10 @@ def voxel_count_of_chunk(t, x, y, p, cls, use_cls, a, b, t_start, width, hw, lo_
 
 @njit(cache=True, nogil=True)
 def voxel_count_flat(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, counts, out, ready):
-    """`add_flat` (saturating counts) and `voxel_table_kernel` over the same buffered events, in one pass.
+    """`add_flat` (saturating counts) and `voxel_table_kernel` over the same buffered events, in one call.
     Returns `ready`."""
-    ready = _zero_for(buf_t, t_start, hw, lo_at, out, ready)
-    for j in range(len(buf_t)):
-        f = np.intp(buf_f[j])
-        if counts[ix(f)] != COUNT_MAX:
-            counts[ix(f)] += 1
-        _voxel_add_table(out, f, np.intp(f >= hw), buf_t[j] - t_start, hw, lo_at, w_lo, w_hi)
-    return ready
+    add_flat(counts, buf_f, 0, len(buf_f))
+    return voxel_table_kernel(buf_t, buf_f, t_start, hw, lo_at, w_lo, w_hi, out, ready)
 
 
 @njit(cache=True, nogil=True)
