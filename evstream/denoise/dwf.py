@@ -28,8 +28,10 @@ from .common import NO_SCORE, ScoredClassifier, check, is_int
 
 @functools.cache
 def dwf_kernel(want_score):
-    """The kernel with or without the score (a compile-time constant): without it, the count stops
-    at k and no score is written."""
+    """The kernel with or without the score (a compile-time constant): without it no score is written.
+    Both count every window position: stopping at k (a branch per position whose outcome the CPU cannot
+    predict, and no vector loop) made the class-only kernel 0.84x the scored one at 346x260 and 0.60x at
+    1280x720."""
 
     @njit(cache=True, nogil=True)
     def kernel(x, y, win_x, win_y, fill, head, radius, k, out, score):
@@ -43,10 +45,6 @@ def dwf_kernel(want_score):
                 for j in range(fill[w]):
                     if abs(np.int64(win_x[w, j]) - xi) + abs(np.int64(win_y[w, j]) - yi) <= radius:
                         n += 1
-                        if n >= k and not want_score:
-                            break
-                if n >= k and not want_score:
-                    break
             w = 0 if n >= k else 1
             out[i] = w
             if want_score:
