@@ -7,15 +7,16 @@ Each cell (a sensor size and a chunk size) runs in a fresh process: every case o
 the peers', interleaved round by round in a shuffled order, beside a memory copy of the same chunks
 (the floor of reading the events); the best and the median CPU time (`time.process_time`) of each are
 reported, the ratios from both, and the load over the cell: on a shared machine, time spent preempted
-is not ours. A fresh process per cell: in one process for everything, the 1280×720 cascade ran up to
-~20 % slower after the 346×260 cells than alone (dv BAF up to ~10 %), varying from process to process
-(docs/method.md, "Throughput and memory").
+is not ours. A fresh process per cell: with every cell of a sensor size in one process, the 1280×720
+cascade ran 10–20 % slower than in fresh processes in some runs and not in others (no single cause
+found; the ratios of filters measured in one process are steadier than their speeds; docs/method.md,
+"Throughput and memory").
 Peers, same events, same chunks: dv-processing's BackgroundActivityNoiseFilter (2 ms, its default and
 BAF's) and KNoiseFilter (C++, `pip install -e '.[bench]'`; skipped, saying why, when absent) and a plain
 branch-free numba BAF written here (the floor a BAF stage can reach).
 
-    python -m benchmarks paper                          # the whole table (about 2 minutes on a quiet machine)
-    EVSTREAM_BENCH_PROCESSES=3 python -m benchmarks paper # each cell in 3 processes, their rounds pooled
+    python -m benchmarks paper                          # the whole table (about 20 s)
+    EVSTREAM_BENCH_PROCESSES=3 python -m benchmarks paper # each cell in 3 processes, rounds pooled
 """
 
 from __future__ import annotations
