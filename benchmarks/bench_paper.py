@@ -142,7 +142,16 @@ def cell(name: str, chunk: int | None) -> dict:
     cases = throughput_cases(s, store, chunk)
     load = os.getloadavg()[0]
     times = cpu_s(cases, ROUNDS, shuffle=True)
-    return {"n": len(s), "load": [load, os.getloadavg()[0]], "skipped": why, "times": times}
+    return {"n": len(s), "load": [load, os.getloadavg()[0]], "skipped": why, "times": times, "kernels": kernels()}
+
+
+def kernels() -> str:
+    """How this process's stages run their kernels: compiled ahead of time (`make aot`; the commands' kernels,
+    the cascade's among them) or numba's JIT (the module missing, or built from other sources: any file of
+    the package changed since; ~2–3 % slower cascade in one call at 1280×720, session 11)."""
+    from evstream import jit
+
+    return "ahead of time" if any(k.aot for k in list(jit.KERNELS)) else "numba JIT (make aot)"
 
 
 def in_cells(*args) -> list[dict]:
@@ -161,7 +170,8 @@ def run() -> None:
             runs = in_cells("cell", name, chunk or 0)
             times = {case: [t for r in runs for t in r["times"][case]] for case in runs[0]["times"]}
             loads = [x for r in runs for x in r["load"]]
-            print(f"   {chunk_label(chunk)}: load {min(loads):.1f}–{max(loads):.1f}", flush=True)
+            print(f"   {chunk_label(chunk)}: load {min(loads):.1f}–{max(loads):.1f}, kernels "
+                  f"{', '.join(sorted({r['kernels'] for r in runs}))}", flush=True)
             if runs[0]["skipped"]:
                 print(f"   (dv-processing skipped: {runs[0]['skipped']})")
             report_cell(times, n)
