@@ -146,6 +146,11 @@ def test_a_wrong_pipeline_file_names_the_mistake(tmp_path, capsys, toml, says):
     (["replay", SHIPPED, "--save", "x.mcap"], "--save x.mcap: a Rerun recording's name ends in .rrd"),
     (["replay", SHIPPED, "--save", "out/x.npz"], "--save out/x.npz: a Rerun recording's name ends in .rrd"),
     (["subscribe", "evstream/*/events", "--save", "x"], "--save x: a Rerun recording's name ends in .rrd"),
+    (["replay", SHIPPED, "--denoise", "undistort"], "--denoise undistort: needs camera_info = FILE.yaml"),  # was 1
+    # a comma list, as a user types it: was "could not convert string to float: '-'" (the string's characters)
+    (["archive", SHIPPED, "OUT.mcap", "--denoise", "undistort", *(f"--set={k}=100" for k in ("fx", "fy", "cx", "cy")),
+      "--set", "distortion=-0.3,0.1"], "undistort: distortion is a list of numbers, as in --set "
+                                       "'distortion=[-0.3, 0.1, 0, 0]'; got '-0.3,0.1'"),
 ])
 def test_a_flag_value_that_cannot_work_is_a_usage_error_naming_the_flag(tmp_path, capsys, monkeypatch, argv, says):
     monkeypatch.chdir(tmp_path)  # OUT.mcap, out/ land here if a check is missing

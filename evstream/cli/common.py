@@ -148,7 +148,9 @@ def pipeline_from_args(args, source) -> Pipeline:
     try:  # a value the stage refuses: in the stage's words (as from a TOML file)
         return api.build_pipeline(spec)
     except ValueError as e:
-        if not settings:
+        if not settings and not params:  # a stage that needs parameters (undistort): the flag was the mistake
+            raise UsageError(f"--denoise {name}: {str(e).removeprefix(f'{name}: ')}") from None
+        if not settings:  # --model or --keep: the file or the model's operating point, in its words
             raise
         raise UsageError(f"--set {' --set '.join(settings)}: {e}") from None
 

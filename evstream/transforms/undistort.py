@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import CameraModel, from_camera_info
-from ..events import EventChunk, Geometry
+from ..events import EventChunk, Geometry, shown
 from ..jit import njit
 from ..pipeline import register
 from .base import Transform
@@ -84,6 +84,9 @@ class Undistort(Transform):
         else:
             if any(v is None for v in intrinsics):
                 raise ValueError("undistort: needs camera_info = FILE.yaml, or fx, fy, cx and cy (and distortion)")
+            if self.distortion is not None and not isinstance(self.distortion, (list, tuple, np.ndarray)):
+                raise ValueError("undistort: distortion is a list of numbers, as in --set 'distortion=[-0.3, 0.1, 0, "
+                                 f"0]'; got {shown(self.distortion)}")  # a string's characters were read one by one
             self.camera = CameraModel(self.fx, self.fy, self.cx, self.cy, self.model, tuple(self.distortion or ()))
         self._geometry: Geometry | None = None
 
