@@ -8,8 +8,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass
+from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass, concat
 from evstream.framing import AdaptiveOverlap, FixedCount, FixedWindow, OverlapAccumulation
+from evstream.framing.fixed import FN_FULL, fn_run, fn_scan
 from evstream.pipeline import Pipeline, build, describe, kinds
 from evstream.testing import (
     assert_bounded_state,
@@ -439,6 +440,46 @@ def test_overlap_buffer_grows_past_its_initial_size():
     frames = frames_of(OverlapAccumulation(window_us=15_000, stride_us=5_000), split(s, [0, 7, 20_000, 20_001, len(s)]))
     assert max(fr.n_events for fr in frames) > 1 << 14
     assert_frames_equal(frames, ref_oa(s, window_us=15_000, stride_us=5_000))
+
+
+def test_overlap_buffer_grows_while_it_holds_events_then_fills_again():
+    """The buffer grows while it holds a window's events (16384 of them when the next chunk comes), and
+    then fills past the size it grew to before it grows again: both of its arrays (times and flat
+    indices) must have grown alike. One frame holds ~40,000 events (stride 1 ms of a 30 ms window, so
+    nearly all are buffered), pushed in chunks of 1000; the frames are those of one push."""
+    s = random_stream(12, 45_000, G, mean_dt_us=0.5)
+    oa = dict(window_us=30_000, stride_us=1_000)
+    frames = frames_of(OverlapAccumulation(**oa), split(s, list(range(0, len(s), 1000)) + [len(s)]))
+    assert max(fr.n_events for fr in frames) > 2 * (1 << 14)
+    assert_frames_equal(frames, frames_of(OverlapAccumulation(**oa), [s]))
+
+
+@pytest.mark.parametrize("use_cls", [False, True])
+def test_fn_kernels_give_an_empty_frame_no_deadline(use_cls):
+    """A frame holding no event yet has no deadline: the first and last times handed in are still those
+    of the frame before (closed full), and an event long past them starts the new frame. Timing out on
+    them instead made FixedCount, over a classified stream, close empty frames without end."""
+    t = np.array([5000, 5001, 5002], np.int64)
+    cls = np.zeros(3, np.uint8)
+    assert fn_scan(t, cls, use_cls, 0, 0, 2, 100, 150, 500) == (2, 2, 5000, 5001, FN_FULL)
+    counts = np.zeros(2 * 3 * 4, np.uint16)
+    x, y, p = np.array([0, 1, 2], np.uint16), np.array([0, 1, 2], np.uint16), np.array([1, 0, 1], np.uint8)
+    assert fn_run(t, x, y, p, cls, use_cls, 0, counts, 4, 12, 0, 2, 100, 150, 500) == (2, 2, 5000, 5001, FN_FULL)
+    assert counts.reshape(2, 3, 4)[1, 0, 0] == 1 and counts.reshape(2, 3, 4)[0, 1, 1] == 1 and counts.sum() == 2
+
+
+def test_fn_windows_after_a_quiet_stretch_are_the_same_with_a_follower():
+    """A representation over fixed-count windows finds them without counting (`fn_scan`): over a
+    classified stream whose events come long after the last full frame began, the same windows as
+    FixedCount's own."""
+    s = random_stream(13, 400, G, mean_dt_us=40)
+    gap = EventChunk.from_arrays(s.t + 10_000_000, s.x, s.y, s.p, G).replace(cls=s.label)
+    s = concat([s.replace(cls=s.label), gap])
+    spec = {"n_events": 50, "max_window_us": 5_000}
+    plain = frames_of(FixedCount(**spec), [s])
+    voxels = frames_of(build("framer", {"kind": "voxel", "window": "fn", "bins": 3, **spec}), [s])
+    assert [(f.t_start, f.t_end, f.n_events) for f in voxels] == [(f.t_start, f.t_end, f.n_events) for f in plain]
+    assert any(f.t_start > 10_000_000 for f in plain) and all(f.n_events for f in plain)
 
 
 def test_fn_an_event_on_the_deadline_starts_the_next_frame():

@@ -1,0 +1,169 @@
+"""tests/mutation.py's in-process executor (`--inproc`): the parent's guard on a worker stuck in
+compiled code or growing without bound, the verdicts kept across a change of sources and across a
+failing control run, and every target's test selection holding the tests that import its functions.
+The guard's workers here are real processes (a compiled loop, an allocation, a sleep)."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import mutation
+import pytest
+
+
+def _worker(tmp_path, body: str, **now) -> tuple[subprocess.Popen, object]:
+    """A process that says (as the executor's worker does, in its running file) what it runs, then runs `body`."""
+    running = tmp_path / "inproc.running"
+    code = f"import json, pathlib\npathlib.Path({str(running)!r}).write_text(json.dumps({now!r}))\n"
+    return subprocess.Popen([sys.executable, "-c", code + textwrap.dedent(body)]), running
+
+
+@pytest.fixture
+def compiled_loop():
+    return """
+        import signal
+        from numba import njit
+
+        @njit
+        def spin(n):  # a minute or so (xorshift: nothing to fold away), so that a failing guard ends too
+            x = 1
+            for _ in range(n):
+                x ^= (x << 13) & 0xFFFFFFFF
+                x ^= x >> 17
+                x ^= (x << 5) & 0xFFFFFFFF
+            return x
+
+        spin(1)  # compiled before the limit is set
+        def on_alarm(signum, frame):
+            raise RuntimeError("the CPU limit, as the worker's")
+        signal.signal(signal.SIGPROF, on_alarm)
+        signal.setitimer(signal.ITIMER_PROF, 0.1)
+        spin(30_000_000_000)
+    """
+
+
+def test_the_guard_stops_a_worker_looping_in_compiled_code(tmp_path, compiled_loop):
+    """A mutant looping inside compiled code (session 10: `DensityFilter._grow` 26 ran 11 min): the
+    worker's own CPU limit (ITIMER_PROF, whose handler runs between bytecodes) never fires; the parent
+    stops it past the test's CPU limit: a timeout, the test named."""
+    worker, running = _worker(tmp_path, compiled_loop, mutant="m__mutmut_1", test="t::a", limit_s=0.2, rss_mb=1e6)
+    verdict = mutation.guard(worker, running, poll_s=0.05, cpu_s=0.3, wall=1e6)
+    assert worker.returncode == -9
+    assert verdict["mutant"] == "m__mutmut_1" and verdict["status"] == "timeout" and verdict["failed"] == ["t::a"]
+
+
+def test_the_guard_stops_a_worker_past_its_memory_bound(tmp_path):
+    worker, running = _worker(tmp_path, """
+        import time
+        held = []
+        while len(held) < 100:  # up to 1 GB, then wait: the guard must have stopped it before
+            held.append(b"x" * 10_000_000)
+            time.sleep(0.01)
+        time.sleep(60)
+    """, mutant="m__mutmut_2", test="t::b", limit_s=600.0, rss_mb=200.0)
+    verdict = mutation.guard(worker, running, poll_s=0.05)
+    assert worker.returncode == -9 and verdict["status"] == "memory" and verdict["mutant"] == "m__mutmut_2"
+
+
+def test_the_guard_stops_a_worker_blocked_past_its_wall_limit(tmp_path):
+    """A mutant that blocks (a wait, a deadlock) uses no CPU: only wall time sees it."""
+    worker, running = _worker(tmp_path, "import time; time.sleep(60)", mutant="m__mutmut_3", test="t::c",
+                              limit_s=0.05, rss_mb=1e6)
+    verdict = mutation.guard(worker, running, poll_s=0.05, wall=4.0)
+    assert worker.returncode == -9 and verdict["status"] == "timeout" and verdict["mutant"] == "m__mutmut_3"
+
+
+def test_the_guard_gives_each_test_its_own_limit_and_lets_the_worker_end(tmp_path):
+    """Three tests of 0.3 s of CPU each, each within its limit (0.1 + 0.3 s) though the three are not;
+    between mutants (nothing running) there is no limit; the worker ends by itself: no verdict."""
+    worker, running = _worker(tmp_path, f"""
+        import time
+        path = pathlib.Path({str(tmp_path / "inproc.running")!r})
+        for test in ("t::d", "t::e", "t::f"):
+            path.write_text(json.dumps(dict(mutant="m__mutmut_4", test=test, limit_s=0.1, rss_mb=1e6)))
+            t0 = time.process_time()
+            while time.process_time() - t0 < 0.3:
+                pass
+        path.write_text("")
+        t0 = time.process_time()
+        while time.process_time() - t0 < 1.0:
+            pass
+    """)
+    assert mutation.guard(worker, running, poll_s=0.02, cpu_s=0.3) is None
+    assert worker.returncode == 0
+
+
+def test_a_change_of_sources_keeps_the_verdicts_of_the_functions_it_leaves_alone():
+    """mutmut names a mutant by its function and a number; a verdict holds while that function reads the
+    same, and for a method while its class does (fields, defaults, decorators) but for its other methods."""
+    before = textwrap.dedent("""
+        import numpy as np
+
+        LIMIT = 3
+
+        def same(a):
+            return a + 1
+
+        def edited(a):
+            return a - 1
+
+        def gone(a):
+            return a
+
+        @dataclass
+        class Kept:
+            n: int = 1
+
+            def run(self):
+                return self.n
+
+            def other(self):
+                return 0
+
+        @dataclass
+        class Field:
+            n: int = 1
+
+            def run(self):
+                return self.n
+    """)
+    after = (before.replace("return a - 1", "return a - 2").replace("def gone(a):\n    return a\n", "")
+             .replace("def other(self):\n        return 0", "def other(self):\n        return 1")
+             .replace("class Field:\n    n: int = 1", "class Field:\n    n: int = 2")
+             .replace("LIMIT = 3", "LIMIT = 4"))
+    m = "evstream.mod."
+    verdicts = {f"{m}{fn}__mutmut_{k}": {"status": "killed"} for fn in
+                ("x_same", "x_edited", "x_gone", "xǁKeptǁrun", "xǁKeptǁother", "xǁFieldǁrun") for k in (1, 2)}
+    kept = mutation.unchanged(verdicts, mutation.functions(before, "evstream.mod"),
+                              mutation.functions(after, "evstream.mod"))
+    assert sorted(kept) == [f"{m}x_same__mutmut_1", f"{m}x_same__mutmut_2", f"{m}xǁKeptǁrun__mutmut_1",
+                            f"{m}xǁKeptǁrun__mutmut_2"]
+
+
+def test_again_forgets_the_old_verdicts_only_once_the_control_run_has_passed(tmp_path):
+    """`--again` names the mutants to run again; their old verdicts stay (and count) until the worker's
+    clean run before the mutants passes, so a failing control (tests newer than the copy's sources)
+    loses nothing."""
+    lines = [{"mutant": f"f__mutmut_{k}", "status": s} for k, s in ((1, "survived"), (2, "killed"), (3, "survived"))]
+    (tmp_path / "inproc.json").write_text("".join(json.dumps(v) + "\n" for v in lines))
+    before = (tmp_path / "inproc.json").read_text()
+    (tmp_path / "inproc.redo").write_text("f__mutmut_1\nf__mutmut_3")  # as `inproc(..., again=True)` does
+    assert mutation._redo(tmp_path) == {"f__mutmut_1", "f__mutmut_3"}
+    assert (tmp_path / "inproc.json").read_text() == before  # a control failing now leaves them all
+    mutation.forget_redone(tmp_path)  # the control passed
+    assert list(mutation._verdicts(tmp_path / "inproc.json")) == ["f__mutmut_2"]
+    assert mutation._redo(tmp_path) == set()
+    mutation.forget_redone(tmp_path)  # a restarted worker (after a crash) forgets nothing more
+    assert list(mutation._verdicts(tmp_path / "inproc.json")) == ["f__mutmut_2"]
+
+
+def test_every_target_runs_the_tests_that_import_its_functions(monkeypatch):
+    """Session 10's first framing_windows selection left out test_represent.py, where fn_scan's tests are:
+    its mutants were 'not reached'. Each target's selection holds every test file importing a function
+    of a module it mutates, but those named in LEFT_OUT and TOOLS with their reasons."""
+    assert mutation.selection_gaps() == {}
+    assert {"tests/test_framing.py", "tests/test_represent.py"} <= mutation.importers(mutation.FRAMING + "fixed.py")
+    files, tests = mutation.TARGETS["framing_windows"]
+    monkeypatch.setitem(mutation.TARGETS, "framing_windows", (files, [t for t in tests if "represent.py" not in t]))
+    assert mutation.selection_gaps() == {"framing_windows": ["tests/test_represent.py"]}
