@@ -77,7 +77,7 @@ TARGETS = {
     "denoise_baselines": ([DENOISE + f for f in ("baf.py", "dwf.py", "hotpixel.py", "khodamoradi.py",
                                                  "oracle.py", "refractory.py", "stcf.py", "ynoise.py")],
                           ["tests/test_baselines.py", "tests/test_metrics.py", "tests/test_pipeline.py",
-                           "tests/test_paper_cascade.py"]),
+                           "tests/test_paper_cascade.py", "tests/test_baf_stage.py"]),
     # the two per-pixel baselines alone (the others stay compiled: their tests share test_baselines.py)
     "denoise_per_pixel": ([DENOISE + "hotpixel.py", DENOISE + "refractory.py"],
                           ["tests/test_baselines.py", "tests/test_paper_cascade.py"]),
