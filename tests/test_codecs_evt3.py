@@ -337,3 +337,100 @@ def test_check_kernel_matches_reference_on_random_events(ev):
     """The numba check against plain Python, events crowding every limit (x = 2047 and 2048, p = 2,
     a step back in time, a first event before `prev`); and the encoder refuses exactly that event."""
     check_kernel_agrees_with_reference(evt3, ev)
+
+
+def _kinds(data: bytes) -> list[int]:
+    return (np.frombuffer(data, "<u2") >> 12).tolist()
+
+
+def _time_high_steps_are_forward_or_wraps(data: bytes):
+    """Each TIME_HIGH after the first steps forward by at most 2047 (under half the 12-bit range; 0 where
+    the clock already stands at 4095 before a wrap) or wraps 4095 -> 0, so no decoder can take a step for a
+    wrap or a wrap for a step back; no word is unknown."""
+    words = np.frombuffer(data, "<u2")
+    highs = (words[words >> 12 == 0x8] & 0xFFF).astype(np.int64).tolist()
+    for a, b in zip(highs[:-1], highs[1:]):
+        assert 0 <= b - a <= 2047 or (a, b) == (4095, 0), (a, b)
+    dec = evt3.Evt3Decoder()
+    dec.decode(data)
+    assert dec.counters == dict.fromkeys(evt3.COUNTER_NAMES, 0) | {"wraps": dec.counters["wraps"]}
+
+
+@pytest.mark.parametrize("t", [
+    [0, 3 * WRAP + 3000 * 4096 + 5],  # from the bottom of a period: steps up to the wrap, then past it
+    [4095 * 4096, WRAP + 2047 * 4096, WRAP + 2048 * 4096 + 7],  # a wrap from the top; a step of exactly 2047
+    [5, 5 + 2048 * 4096, 9 * WRAP],
+])
+def test_encoder_time_high_steps_stay_under_half_the_range(t):
+    t = np.array(t, np.int64)
+    n = len(t)
+    ev = (t, np.arange(n, dtype=np.uint16), np.zeros(n, np.uint16), np.zeros(n, np.uint8))
+    data = evt3.encode(*ev)
+    _time_high_steps_are_forward_or_wraps(data)
+    assert_events_equal(evt3.decode(data), ev)
+
+
+@given(event_streams())
+def test_encoder_time_high_steps_stay_under_half_the_range_on_random_streams(ev):
+    _time_high_steps_are_forward_or_wraps(evt3.encode(*ev))
+
+
+@pytest.mark.parametrize("x, p, kinds", [
+    ([0, 1, 2, 24], [1] * 4, [0x3, 0x4, 0x2]),  # the 4th is 12 past the vector's span: an ADDR_X of its own
+    ([0, 1, 2, 23], [1] * 4, [0x3, 0x4, 0x4]),  # the 4th in the next 12: a second VECT_12
+    ([0, 1, 2, 2], [1] * 4, [0x3, 0x4, 0x2]),  # a repeated pixel ends the run: its own ADDR_X
+    ([0, 1, 2, 2, 3], [1] * 5, [0x3, 0x4, 0x2, 0x2]),
+    ([5, 6, 7], [0, 1, 0], [0x2, 0x2, 0x2]),  # a vector is one polarity
+    ([5, 3, 7], [1] * 3, [0x2, 0x2, 0x2]),  # x must increase
+    ([5, 6, 6], [1] * 3, [0x2, 0x2, 0x2]),  # strictly: three events of two pixels do not pay for a vector
+])
+def test_encoder_puts_runs_of_three_increasing_pixels_in_vectors_and_nothing_else(x, p, kinds):
+    """Runs of >= 3 events with the same t, y, p and strictly increasing x within 12 pixels go into vector
+    words (encode's promise); anything else is ADDR_X words, and every event comes back, repeats too."""
+    n = len(x)
+    ev = (np.full(n, 77, np.int64), np.array(x, np.uint16), np.full(n, 3, np.uint16), np.array(p, np.uint8))
+    data = evt3.encode(*ev)
+    assert _kinds(data) == [0x8, 0x6, 0x0, *kinds]
+    assert_events_equal(evt3.decode(data), ev)
+
+
+def test_streaming_encoder_adds_only_what_changed():
+    """A later call at the same time and row adds the event's ADDR_X word alone: the encoder carries the
+    time high, time low and row over calls."""
+    enc = evt3.Evt3Encoder()
+    one = lambda t, x, y: enc.encode(np.array([t]), np.array([x]), np.array([y]), np.array([1]))  # noqa: E731
+    assert _kinds(one(5000, 1, 2)) == [0x8, 0x6, 0x0, 0x2]
+    assert _kinds(one(5000, 3, 2)) == [0x2]
+    assert _kinds(one(5001, 3, 2)) == [0x6, 0x2]
+    assert _kinds(one(5001, 3, 4)) == [0x0, 0x2]
+    assert _kinds(one(9000, 3, 4)) == [0x8, 0x6, 0x2]
+
+
+def test_encoder_messages_say_what_is_wrong():
+    enc = evt3.Evt3Encoder()
+    with pytest.raises(ValueError, match=r"^encode: arrays differ in length \(t 2, x 1, y 2, p 2\)$"):
+        enc.encode(np.zeros(2), np.zeros(1), np.zeros(2), np.zeros(2))
+    big = evt3.MAX_WRAPS_PER_CALL + 1
+    with pytest.raises(ValueError, match=(
+            rf"^encode: timestamps jump from 0 to {big * WRAP} µs \({big:,} wraps of the 24-bit clock, 5 words "
+            r"each\): subtract a time origin first \(RAW writers keep it in the header\)$")):
+        enc.encode(np.array([big * WRAP]), np.zeros(1), np.zeros(1), np.zeros(1))
+    with pytest.raises(ValueError, match=(
+            r"^encode: event 1 \(t=7 µs, previous 7 µs, x=3, y=2, p=2\) cannot be written: EVT3 needs "
+            r"non-decreasing t >= 0, x and y < 2048, p 0 or 1$")):
+        enc.encode(np.array([7, 7]), np.array([1, 3]), np.array([2, 2]), np.array([0, 2]))
+    # a negative row or column is refused (as the unsigned 16-bit value it is cast to), never written
+    for field in ("x", "y"):
+        ev = dict(t=np.array([3]), x=np.array([4]), y=np.array([5]), p=np.array([0])) | {field: np.array([-1])}
+        with pytest.raises(ValueError, match=rf"^encode: event 0 \(.*{field}=65535.*cannot be written"):
+            evt3.encode(**ev)
+
+
+def test_encoder_takes_the_largest_jump_it_allows():
+    """MAX_WRAPS_PER_CALL wraps of the clock in one call are written (and decode back); one more is refused."""
+    t = np.array([5, evt3.MAX_WRAPS_PER_CALL * WRAP + 5], np.int64)
+    ev = (t, np.array([1, 2], np.uint16), np.array([3, 4], np.uint16), np.array([0, 1], np.uint8))
+    data = evt3.encode(*ev)
+    assert_events_equal(evt3.decode(data), ev)
+    with pytest.raises(ValueError, match="wraps of the 24-bit clock"):
+        evt3.encode(t + np.array([0, WRAP]), *ev[1:])

@@ -260,3 +260,81 @@ def test_evt3_skip_counts_the_clock_wraps_and_other_words_like_decoding():
             t = np.concatenate([q[0] for q in seek_in_blocks(dec, data, start, block)])
             np.testing.assert_array_equal(t[t >= start], t_all[t_all >= start])
             assert dec.counters["wraps"] == 2
+
+
+def reference_skip(words: list[int], start_us: int) -> int:
+    """The EVT3 skip's definition, word by word in plain Python: the index of the first TIME_HIGH or
+    TIME_LOW word that sets the time to start_us or later once there is a time base (len(words): none)."""
+    high = low = loops = 0
+    has_high = False
+    for i, w in enumerate(words):
+        kind, payload = w >> 12, w & 0xFFF
+        if kind == 0x8:
+            wrap = has_high and high - payload >= 4080
+            if (loops + wrap) * (1 << 24) + payload * 4096 + low >= start_us:
+                return i
+            loops, high, has_high = loops + wrap, payload, True
+        elif kind == 0x6:
+            if has_high and loops * (1 << 24) + high * 4096 + payload >= start_us:
+                return i
+            low = payload
+    return len(words)
+
+
+def evt3_periods(rng, n_periods: int) -> tuple[list[int], list[int]]:
+    """Hand-made EVT3 words: rows, vector bases, vectors, events, time lows and OTHERS between TIME_HIGH
+    words that step forward, step back, and wrap (a drop of 4080 or more) often; and the times the
+    TIME_HIGH and TIME_LOW words set and each period's last microsecond (the starts worth seeking to)."""
+    words, times = [_word(0x6, int(rng.integers(0, 4096)))], []  # a time low before any time base
+    high, low, loops, has_high = 0, words[0] & 0xFFF, 0, False
+    for _ in range(n_periods):
+        roll = rng.random()
+        if roll < 0.25:  # a wrap: from the top of the range (through 4095 if below it) to the bottom
+            if high < 4080:
+                steps = [4095, int(rng.integers(0, 16))]
+            else:
+                steps = [int(rng.integers(0, high - 4079))]
+        elif roll < 0.35:
+            steps = [max(0, high - int(rng.integers(1, 200)))]  # a step back, not a wrap
+        else:
+            steps = [min(4095, high + int(rng.integers(1, 1500)))]
+        for payload in steps:
+            if has_high and high - payload >= 4080:
+                loops += 1
+            high, has_high = payload, True
+            words.append(_word(0x8, payload))
+            times += [loops * (1 << 24) + high * 4096 + low, loops * (1 << 24) + high * 4096 + 4095]
+        for _ in range(int(rng.integers(0, 7))):
+            kind = int(rng.choice([0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x6, 0xE]))
+            payload = int(rng.choice([0, 4095, int(rng.integers(0, 4096))]))  # a period's first and last µs too
+            words.append(_word(kind, payload))
+            if kind == 0x6:
+                low = payload
+                times.append(loops * (1 << 24) + high * 4096 + low)
+    return words, times
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40))
+def test_evt3_skip_matches_its_plain_python_definition(seed, block):
+    """The skip kernel (its TIME_HIGH pass, `_restore` and `_follow`) against the definition, fed in blocks:
+    it stops at exactly the word `reference_skip` names, with the decoder's registers and wrap count as
+    decoding every word before it leaves them, and counts nothing else. The starts are the times each
+    time word sets, the microsecond after (a wrap, a step back or a time low just short of the start) and
+    the last microsecond of a period (one that reaches the start only there)."""
+    rng = np.random.default_rng(seed)
+    words, times = evt3_periods(rng, 40)
+    data = np.array(words, "<u2").tobytes()
+    starts = {0, max(times) + 1, *(t + d for t in rng.choice(times, 16) for d in (0, 1))}
+    for start in sorted(starts):
+        want = reference_skip(words, start)
+        before = evt3.Evt3Decoder()
+        before.decode(data[: 2 * want])
+        dec, skipped = evt3.Evt3Decoder(), 0
+        for a in range(0, len(data), 2 * block):
+            rest = dec.skip_before(data[a : a + 2 * block], start)
+            skipped += len(data[a : a + 2 * block]) - (0 if rest is None else len(rest))
+            if rest is not None:
+                break
+        assert skipped == 2 * want, start
+        np.testing.assert_array_equal(dec.state[:7], before.state[:7])
+        assert dec.counters == dict.fromkeys(evt3.COUNTER_NAMES, 0) | {"wraps": before.counters["wraps"]}
