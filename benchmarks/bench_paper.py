@@ -9,14 +9,15 @@ the peers', interleaved round by round in a shuffled order, beside a memory copy
 reported, the ratios from both, and the load over the cell: on a shared machine, time spent preempted
 is not ours. A fresh process per cell: with every cell of a sensor size in one process, the 1280×720
 cascade ran 10–20 % slower than in fresh processes in some runs and not in others (no single cause
-found; the ratios of filters measured in one process are steadier than their speeds; docs/method.md,
-"Throughput and memory").
+found). Fresh processes running the same cell differ too (best of 5 rounds: ±2–4 % for each filter,
+nearly independently), so each cell runs in 3 processes by default, their rounds pooled
+(docs/method.md, "Throughput and memory").
 Peers, same events, same chunks: dv-processing's BackgroundActivityNoiseFilter (2 ms, its default and
 BAF's) and KNoiseFilter (C++, `pip install -e '.[bench]'`; skipped, saying why, when absent) and a plain
 branch-free numba BAF written here (the floor a BAF stage can reach).
 
-    python -m benchmarks paper                          # the whole table (about 20 s)
-    EVSTREAM_BENCH_PROCESSES=3 python -m benchmarks paper # each cell in 3 processes, rounds pooled
+    python -m benchmarks paper                          # the whole table (about a minute)
+    EVSTREAM_BENCH_PROCESSES=1 python -m benchmarks paper # one process per cell (about 20 s)
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from .common import cpu_s, in_fresh_process, noisy_scene, peak_alloc_bytes, repo
 
 CHUNKS = (10_000, 100_000, None)  # None: the whole stream in one call
 ROUNDS = int(os.environ.get("EVSTREAM_BENCH_ROUNDS", "5"))
-PROCESSES = int(os.environ.get("EVSTREAM_BENCH_PROCESSES", "1"))  # fresh processes per cell, rounds pooled
+PROCESSES = int(os.environ.get("EVSTREAM_BENCH_PROCESSES", "3"))  # fresh processes per cell, rounds pooled
 SCENES = {"turntable": (Geometry(346, 260), 1_000_000), "bar": (Geometry(1280, 720), 300_000)}
 
 
