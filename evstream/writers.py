@@ -305,6 +305,14 @@ class FileSink:
         return {"out": str(self.path), "format": self.format, "events": self.events}
 
 
+def not_a_file_format(out: Path) -> str:
+    """What `convert` says of an output name it has no format for, with the command that writes it if any."""
+    elsewhere = {".mcap": "an MCAP archive: evstream archive REC OUT.mcap",
+                 ".rrd": "a Rerun recording: evstream replay REC --save OUT.rrd"}.get(out.suffix.lower())
+    return (f"{out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5"
+            + (f"; {elsewhere}" if elsewhere else ""))
+
+
 def convert(path, out, *, evt: int | str = 3, on_progress=None, **options) -> dict[str, Any]:
     """Every event of a recording into another format (.npz native, .raw EVT3/EVT2, .h5 HDF5); returns
     what `evstream convert` prints. The output is never the input (checked by file identity).
@@ -314,7 +322,7 @@ def convert(path, out, *, evt: int | str = 3, on_progress=None, **options) -> di
 
     out = Path(out)
     if out.suffix.lower() not in FILE_FORMATS:
-        raise ValueError(f"{out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
+        raise ValueError(not_a_file_format(out))
     source = open_recording(path, **options)
     meta = {"converted_from": str(path), "source_format": getattr(source, "format", "?")}
     sink = FileSink(out, geometry=source.geometry, keep_noise=True, evt=evt, meta=meta, inputs=[path, *being_read()])

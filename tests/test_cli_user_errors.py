@@ -146,6 +146,10 @@ def test_a_wrong_pipeline_file_names_the_mistake(tmp_path, capsys, toml, says):
     (["replay", SHIPPED, "--save", "x.mcap"], "--save x.mcap: a Rerun recording's name ends in .rrd"),
     (["replay", SHIPPED, "--save", "out/x.npz"], "--save out/x.npz: a Rerun recording's name ends in .rrd"),
     (["subscribe", "evstream/*/events", "--save", "x"], "--save x: a Rerun recording's name ends in .rrd"),
+    (["convert", SHIPPED, "x.mcap"], "x.mcap: output format from the extension: .npz (native), .raw (EVT3/EVT2), "
+                                      ".h5; an MCAP archive: evstream archive REC OUT.mcap"),  # no way on was said
+    (["convert", SHIPPED, "x.rrd"], "x.rrd: output format from the extension: .npz (native), .raw (EVT3/EVT2), "
+                                     ".h5; a Rerun recording: evstream replay REC --save OUT.rrd"),
     (["replay", SHIPPED, "--denoise", "undistort"], "--denoise undistort: needs camera_info = FILE.yaml"),  # was 1
     # a comma list, as a user types it: was "could not convert string to float: '-'" (the string's characters)
     (["archive", SHIPPED, "OUT.mcap", "--denoise", "undistort", *(f"--set={k}=100" for k in ("fx", "fy", "cx", "cy")),

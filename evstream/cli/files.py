@@ -8,7 +8,7 @@ from pathlib import Path
 
 from .. import api
 from ..batch import TaskStop
-from ..writers import convert
+from ..writers import convert, not_a_file_format
 from .batch import add_batch_flags, add_sources_and_out, many, run_batch
 from .common import (
     Progress,
@@ -70,7 +70,7 @@ def convert_one(args, stop: TaskStop | None = None) -> dict:
     set, the conversion ends as after a Ctrl-C (TaskInterrupted; the temporary removed, OUT as it was)."""
     out = Path(args.out)
     if out.suffix.lower() not in OUT_KINDS:
-        raise UsageError(f"{args.out}: output format from the extension: .npz (native), .raw (EVT3/EVT2), .h5")
+        raise UsageError(not_a_file_format(out))
     not_the_input(args.source, out, "")  # by identity: `ln X.npz h.npz; convert X.npz h.npz` rewrote X
     options = reader_options(args)
     created = create_folder(out.parent)
