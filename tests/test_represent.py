@@ -22,6 +22,7 @@ from evstream.framing.represent import (
     Representation,
     last_time_count_of,
     last_time_of,
+    last_time_take,
     rebase,
     surface,
     surface_exponent,
@@ -458,9 +459,10 @@ def slide_plain(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf
 
 @given(st.integers(0, 2**32 - 1), st.integers(0, 300), st.integers(2, 6), st.booleans())
 def test_an_overlapping_windows_part_of_a_chunk_in_one_call_matches_plain_python(seed, n, bins, use_cls):
-    """`slide_kernel` (an overlapping window's counts and buffer, up to its end) and `voxel_take` (the same,
-    and each event into the window's voxel grid): the plain-Python counts and buffer, and the grid the
-    table kernel makes of the same events, bit for bit."""
+    """`slide_kernel` (an overlapping window's counts and buffer, up to its end), `last_time_take` (the same,
+    and the newest times) and `voxel_take` (the same, and each event into the window's voxel grid): the
+    plain-Python counts, buffer and newest times, and the grid the table kernel makes of the same events,
+    bit for bit."""
     rng = np.random.default_rng(seed)
     width, height = 4, 3
     hw = width * height
@@ -483,6 +485,20 @@ def test_an_overlapping_windows_part_of_a_chunk_in_one_call_matches_plain_python
     counts, buf_t, buf_f = start_counts.copy(), buf_t0.copy(), buf_f0.copy()
     got = slide_kernel(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail)
     assert (*got, counts.tolist(), buf_t.tolist(), buf_f.tolist()) == want
+
+    # the time surface's: the same, and each counted event its pixel's newest time (t − base, floored)
+    dtype = np.int32 if seed % 2 else np.int64
+    floor = int(np.iinfo(dtype).min)
+    base = int(rng.integers(-50, 150)) if rng.random() < 0.8 else 2**40  # far ahead: every time floored (int32)
+    last0 = rng.integers(-99, 99, 2 * hw).astype(dtype)
+    want_last = last0.tolist()
+    for k in range(i, stop):
+        if not use_cls or cls[k] == 0:
+            want_last[int(p[k]) * hw + int(y[k]) * width + int(x[k])] = max(int(t[k]) - base, floor)
+    counts, buf_t, buf_f, last = start_counts.copy(), buf_t0.copy(), buf_f0.copy(), last0.copy()
+    got = last_time_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail, base, last)
+    assert (*got, counts.tolist(), buf_t.tolist(), buf_f.tolist()) == want
+    assert last.tolist() == want_last
 
     span = end - t_start
     lo_at, w_lo, w_hi = np.empty(2 * span, np.intp), np.empty(2 * span, np.float32), np.empty(2 * span, np.float32)

@@ -108,7 +108,8 @@ class SlidingFramer(FramerBase):
     # its `counts`, buffers those at or after keep_t, returns (stop, tail, how many counted)) and adds
     # them to its own array; `follower.add_flat(t, f, start, end, counts)` counts buffered events (times,
     # flat indices, all counted) as `add_flat` does: those a new frame starts with when the previous
-    # one closes.
+    # one closes; `follower.closed(frame)` is called as each frame is emitted, before any later event
+    # is taken.
     follower = None
 
     def _reset(self) -> None:
@@ -185,10 +186,10 @@ class SlidingFramer(FramerBase):
         n = self.n
         nxt = self._next_start(self.start, n)
         j = self.head + int(np.searchsorted(self.buf_t[self.head : self.tail], nxt, side="left"))
-        if n == 0:
-            out.append(self._frame(self.start, self.end, 0, None))
-        else:  # hand the counts to the frame; rebuild the next frame's from the events that stay
-            out.append(self._frame(self.start, self.end, n, self.counts))
+        out.append(self._frame(self.start, self.end, n, self.counts if n else None))  # the frame owns its counts
+        if self.follower is not None:
+            self.follower.closed(out[-1])
+        if n:  # rebuild the next frame's counts from the events that stay
             self.counts = self._new_counts()
             if self.follower is None:
                 add_flat(self.counts, self.buf_f, j, self.tail)

@@ -319,6 +319,33 @@ def last_time_count_of(t, x, y, p, cls, use_cls, width, hw, base, last_t, counts
 
 
 @njit(cache=True, nogil=True)
+def last_time_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail, base, last_t):
+    """An overlapping window's part of a chunk in one call (`SlidingFramer.follower.take`): what
+    `slide_kernel` does (count the events from i up to `end`, buffer those at or after keep_t), each event
+    also made its pixel's newest time as `last_time_of` does. Returns (stop, the new tail, how many
+    counted)."""
+    stop, mid = frame_part(t, i, end, keep_t)
+    floor = np.iinfo(last_t.dtype).min
+    added = 0
+    for k in range(i, mid):
+        j = ix(k)
+        if use_cls and cls[j] != 0:
+            continue
+        f = ix(np.intp(p[j]) * hw + np.intp(y[j]) * width + np.intp(x[j]))
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+        last_t[f] = max(t[j] - base, floor)
+        added += 1
+    n = buffer_events(t, x, y, p, cls, use_cls, mid, stop, width, hw, buf_t, buf_f, tail)
+    for k in range(tail, tail + n):
+        f = ix(buf_f[ix(k)])
+        if counts[f] != COUNT_MAX:
+            counts[f] += 1
+        last_t[f] = max(buf_t[ix(k)] - base, floor)
+    return stop, tail + n, added + n
+
+
+@njit(cache=True, nogil=True)
 def rebase(last_t, delta):
     """last_t −= delta (>= 0: the base only moves forward), those that fall below the dtype's range
     becoming its smallest value ("never")."""
@@ -548,6 +575,9 @@ class RepresentationFramer(FramerBase):
         if not self._count_add_flat(t, f, t_start, t_end, counts, grid):
             self._add_flat(t, f, t_start, t_end, grid)
             add_flat(counts, f, 0, len(f))
+
+    def closed(self, fr: Frame) -> None:
+        """Called by an overlapping windowing framer as it emits `fr` (`SlidingFramer.follower`)."""
 
     def _window_grid(self, t_start: int) -> _Grid:
         """The array of the window starting at t_start (new at its first event)."""
@@ -810,7 +840,9 @@ class TimeSurface(RepresentationFramer):
     otherwise), and an open fixed-count window holds every counted event after the emitted ones.
     Over fixed time windows it counts the frames' events too, in the same pass (the windowing framer leaves
     them to it: `FixedWindow.follower`; over fixed-count windows that measured ~3 % slower than letting
-    the framer count, as it does)."""
+    the framer count, as it does). Over overlapping windows the windowing framer hands it each window's
+    part of a chunk (`take`: counts, buffer and newest times in one kernel call, `last_time_take`) and
+    each window as it closes, before any later event is applied (`closed`: its surface then)."""
 
     tau_us: float = 50_000.0
     needs_events: ClassVar[bool] = False
@@ -827,12 +859,48 @@ class TimeSurface(RepresentationFramer):
 
     def _reset(self) -> None:
         super()._reset()
-        if self.window == "fw":
-            self.inner.follower = self  # `add` below: the counts are left to `_surfaces`
+        if self.window != "fn":
+            self.inner.follower = self  # fw: `add` below (the counts are left to `_surfaces`); oa, adaptive: `take`
         self._counting = self.window == "fw"  # `_apply` counts the frames' events
+        self._sliding = self.window in ("oa", "adaptive")  # surfaces made as the windows close: `closed`
+        self._made: list[np.ndarray] = []  # oa, adaptive: the surfaces of the windows closed in this push
         self._last_t = None
         self._counted = 0  # counted events in the chunks before this one
         self._emitted = 0  # fn: counted events in the windows emitted so far
+
+    def take(self, chunk: EventChunk, cls, use_cls: bool, i: int, t_start: int, t_end: int, keep_t: int, counts,
+             buf_t, buf_f, tail: int) -> tuple[int, int, int]:
+        """Overlapping windows (`SlidingFramer.follower`): `slide_kernel` and the newest times of the same
+        events (those before t_end: each window's surface is made as it closes, `closed`), in one call."""
+        last = self._last_t
+        t_hi = min(t_end - 1, int(chunk.t[-1]))  # the latest event this call can apply
+        if last.dtype == np.int32 and t_hi - self._base >= REBASE_US:
+            rebase(last, t_hi - self._base)  # as `_apply`; every window still to close ends after t_hi
+            self._base = t_hi
+        return last_time_take(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, t_end, keep_t, self._width,
+                              self._hw, counts, buf_t, buf_f, tail, self._base, last)
+
+    def add_flat(self, t: np.ndarray, f: np.ndarray, t_start: int, t_end: int, counts) -> None:
+        """Overlapping windows: the events a window opens with are counted (their newest times are applied)."""
+        add_flat(counts, f, 0, len(f))
+
+    def closed(self, fr: Frame) -> None:
+        """Overlapping windows: `fr` closes with every event before its end applied, none after: its surface."""
+        self._made.append(self._surface_at(fr.t_end))
+
+    def _surface_at(self, t_end: int) -> np.ndarray:
+        if self._last_t is None:
+            return self._new_data(2)
+        g = self.geometry
+        data = np.empty((2, g.height, g.width), np.float32)  # every pixel is written
+        surface(self._last_t, t_end - self._base, self.tau_us, data.reshape(-1))
+        return data
+
+    def _with_surfaces(self, frames: list[Frame]) -> list[Representation]:
+        """Overlapping windows: the frames with the surfaces `closed` made, in order."""
+        made, self._made = self._made, []
+        return [Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind, self.channels, data)
+                for fr, data in zip(frames, made, strict=True)]
 
     def add(self, chunk: EventChunk, cls, use_cls: bool, a: int, b: int, t_start: int, t_end: int, counts) -> int:
         """Fixed time windows (called by the windowing framer): how many of the events [a, b) count. They are
@@ -867,10 +935,13 @@ class TimeSurface(RepresentationFramer):
     def push(self, chunk: EventChunk) -> list[Representation]:
         if len(chunk) or self.geometry is not None:
             self._geometry(chunk)
+        if self._sliding:
+            return self._with_surfaces(self.inner.push(chunk))
         return self._surfaces(self.inner.push(chunk), chunk)
 
     def finish(self) -> list[Representation]:
-        out = self._surfaces(self.inner.finish(), None)  # every event is in _last_t already
+        frames = self.inner.finish()
+        out = self._with_surfaces(frames) if self._sliding else self._surfaces(frames, None)  # all applied already
         self._reset()
         return out
 
@@ -895,12 +966,7 @@ class TimeSurface(RepresentationFramer):
                 if j > i:
                     self._apply(chunk, cls, use_cls, i, j, fr.counts.reshape(-1) if self._counting else None)
                     i = j
-            if self._last_t is None:
-                data = self._new_data(2)
-            else:
-                g = self.geometry
-                data = np.empty((2, g.height, g.width), np.float32)  # every pixel is written
-                surface(self._last_t, fr.t_end - self._base, self.tau_us, data.reshape(-1))
+            data = self._surface_at(fr.t_end)
             out.append(Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind, self.channels, data))
         if n:
             if i < n:  # the open window's events
