@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import numbers
+import weakref
 from collections.abc import Iterable, Iterator
 from typing import Any
 
@@ -238,7 +239,7 @@ def classify(what, events, *, geometry=None):
     state from call to call (one recording in pieces); a name makes a fresh one. A stage that drops
     events (crop, keep_signal, ...) has no class for every event given: a chunk or an array is then a
     ValueError (`clean` gives the events it keeps; a stream, the classified chunks)."""
-    run, stages = _runner(what)
+    run, stages = _runner(what, "classify")
     if isinstance(events, (EventChunk, np.ndarray)):
         chunk = events if isinstance(events, EventChunk) else from_structured(events, geometry)
         dropper = next((s for s in stages if getattr(s, "drops_events", False)), None)
@@ -255,7 +256,7 @@ def clean(what, events, *, geometry=None):
     fields untouched), or a stream of chunks (a stream of the kept chunks). A transform in `what` (crop,
     flip, downsample, ...) or `keep_signal`: an array holds the events it keeps where it puts them, in the
     array's dtype (fields t, x, y, p or on only: others cannot follow the events)."""
-    run, stages = _runner(what)
+    run, stages = _runner(what, "clean")
     if isinstance(events, EventChunk):
         return run(events).of_class(NoiseClass.SIGNAL)
     if isinstance(events, np.ndarray):
@@ -320,15 +321,43 @@ def _stream(events, what: str):
     return checked()
 
 
-def _runner(what):
-    """A function of one chunk, and the stages it runs (what a chunk may lose or where its events go)."""
-    if isinstance(what, (str, dict)):
-        what = build_pipeline(what)
-    elif isinstance(what, (list, tuple)):
-        what = build_pipeline(*what)
-    if isinstance(what, Pipeline):
+def _runner(what, caller: str):
+    """A function of one chunk, and the stages it runs (what a chunk may lose or where its events go). A
+    built stage or pipeline keeps its state from call to call, so its chunks must come in time order."""
+    if isinstance(what, (str, dict, list, tuple)):  # a fresh one for this call
+        what = build_pipeline(*what) if isinstance(what, (list, tuple)) else build_pipeline(what)
         return (lambda chunk: what.process(chunk).events), what.stages
-    return what, [what]
+    run = (lambda chunk: what.process(chunk).events) if isinstance(what, Pipeline) else what
+    return _in_time_order(run, what, caller), what.stages if isinstance(what, Pipeline) else [what]
+
+
+# id of a built stage or pipeline -> the time of the last event it was given (removed when it is collected)
+_LAST_T: dict[int, int] = {}
+
+
+def _in_time_order(run, owner, caller: str):
+    """`run` refusing a chunk that starts before the last event `owner` was given, by an earlier call too: a
+    notebook cell run again over the same recording with the same stage classed its start with the state
+    the end had left (163,082 events of ball.npz kept instead of 190,691)."""
+    key = id(owner)
+
+    def checked(chunk: EventChunk):
+        last = _LAST_T.get(key)
+        if len(chunk) and last is not None and chunk.t[0] < last:
+            raise EventError(f"{caller}: the events start at t={int(chunk.t[0])} µs, before the last event this stage "
+                             f"was given (t={last} µs): time goes back; for another pass build a fresh stage "
+                             "(evstream.stage) or pass its name")
+        out = run(chunk)
+        if len(chunk):
+            if key not in _LAST_T:
+                try:
+                    weakref.finalize(owner, _LAST_T.pop, key, None)
+                except TypeError:  # cannot be watched (no weak reference): not checked
+                    return out
+            _LAST_T[key] = int(chunk.t[-1])
+        return out
+
+    return checked
 
 
 def from_structured(events: np.ndarray, geometry=None) -> EventChunk:
