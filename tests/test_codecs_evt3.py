@@ -434,3 +434,80 @@ def test_encoder_takes_the_largest_jump_it_allows():
     assert_events_equal(evt3.decode(data), ev)
     with pytest.raises(ValueError, match="wraps of the 24-bit clock"):
         evt3.encode(t + np.array([0, WRAP]), *ev[1:])
+
+
+# -- packets: one kernel call for a batch ------------------------------------------------------------
+def _packet_room(t, a: int, b: int, high: int) -> int:
+    """Packet a:b's worst case in words, as `PacketEncoder.encode_many` sizes its buffer: the opening
+    TIME_HIGH, 4 words an event, the TIME_HIGH steps from where the clock stands (5 words a wrap, one
+    more wrap's worth, the steps of at most 2047 and 2)."""
+    h = int(t[a]) >> 12 if high < 0 else high
+    t_last = int(t[b - 1])
+    return 1 + 4 * (b - a) + 5 * ((t_last >> 24) - (h >> 12) + 1) + ((t_last >> 12) - h) // 2047 + 2
+
+
+def check_packets_kernel(t, x, y, p, bounds, high: int):
+    """`_encode_packets_kernel` against the packets written one by one (`evt3_sensor_clock`, each from where
+    the previous left the clock), for an `out` as long as encode_many makes it and, for each packet j, one
+    word short of j's worst case and exactly it: the kernel writes the packets before the first whose worst
+    case does not fit, exactly as one by one, and nothing past `out`."""
+    from evstream.codecs.packets import evt3_sensor_clock
+
+    t = np.asarray(t, np.int64)
+    want, rooms, h = [], [], high
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        want.append(evt3_sensor_clock(t[a:b], x[a:b], y[a:b], p[a:b], None if h < 0 else h))
+        rooms.append(_packet_room(t, a, b, h))
+        h = int(t[b - 1]) >> 12
+    starts = np.cumsum([0] + [len(w) // 2 for w in want])
+    lengths = {sum(rooms), *(int(starts[j]) + rooms[j] + d for j in range(len(want)) for d in (-1, 0))}
+    for length in sorted(lengths):
+        done_want = next((j for j in range(len(want)) if starts[j] + rooms[j] > length), len(want))
+        buffer = np.full(length + int(starts[-1]) + 64, 0xABCD, np.uint16)  # what lies past `out`
+        ends = np.zeros(len(want), np.int64)
+        done = evt3._encode_packets_kernel(t, x, y, p, np.asarray(bounds, np.int64), np.int64(high),
+                                           buffer[:length], ends)
+        assert done == done_want, (length, rooms)
+        np.testing.assert_array_equal(ends[:done], starts[1 : done + 1])
+        assert buffer[: starts[done]].tobytes() == b"".join(want[:done])
+        assert (buffer[length:] == 0xABCD).all()
+
+
+@pytest.mark.parametrize("offset, high", [
+    (0, -1),  # the first event at t = 0, the clock from it
+    (5 * 4096, 0),  # the clock left at time-high 0 by an earlier batch
+    (2 * WRAP + 3 * 4096, 2 * 4096 + 1),  # past two wraps, the clock behind the first event
+])
+def test_packets_kernel_writes_each_packet_with_room_for_its_worst_case(offset, high):
+    t = offset + np.array([0, 10, 5000, 2 * WRAP + 77, 2 * WRAP + 78, 2 * WRAP + 78, 3 * WRAP + 5], np.int64)
+    n = len(t)
+    x, y, p = np.arange(n, dtype=np.uint16) * 3, np.full(n, 7, np.uint16), np.arange(n, dtype=np.uint8) % 2
+    check_packets_kernel(t, x, y, p, [0, 2, 3, 6, 7], high)
+
+
+@given(event_streams(), st.integers(1, 8), st.integers(0, 99), st.sampled_from(["first", "zero", "behind"]))
+def test_packets_kernel_writes_each_packet_with_room_for_its_worst_case_on_random_streams(ev, n_packets, seed,
+                                                                                         clock):
+    t, x, y, p = ev
+    if not len(t):
+        return
+    rng = np.random.default_rng(seed)
+    bounds = np.unique(np.concatenate([[0, len(t)], rng.integers(1, len(t) + 1, n_packets)])).tolist()
+    high = {"first": -1, "zero": 0, "behind": max(0, (int(t[0]) >> 12) - int(rng.integers(0, 3 * 4096)))}[clock]
+    check_packets_kernel(t, x, y, p, bounds, high)
+
+
+def test_packets_kernel_stops_at_a_packet_without_events():
+    """A packet with no event is not written (the kernel would read its first and last event outside it):
+    the kernel stops there, and encode_many then says what `encode` says of it."""
+    from evstream.codecs.packets import PacketEncoder
+
+    t = np.array([10, 20, 30, 5000], np.int64)
+    x = y = np.array([1, 2, 3, 4], np.uint16)
+    p = np.array([0, 1, 0, 1], np.uint8)
+    for bounds, done in (([0, 2, 2, 4], 1), ([0, 4, 4], 1), ([0, 0, 4], 0)):
+        ends = np.zeros(len(bounds) - 1, np.int64)
+        out = np.zeros(100, np.uint16)
+        assert evt3._encode_packets_kernel(t, x, y, p, np.array(bounds, np.int64), np.int64(-1), out, ends) == done
+        with pytest.raises(ValueError, match="^a packet needs at least one event$"):
+            PacketEncoder(width=64, height=48).encode_many(t, x, y, p, bounds)

@@ -459,8 +459,8 @@ def _encode_packets_kernel(t, x, y, p, bounds, high, out, ends):
     """Packets j = events bounds[j]:bounds[j+1], each on the sensor clock as `packets.evt3_sensor_clock`
     writes one: a TIME_HIGH word where the previous packet left the clock (`high`: its absolute time-high,
     -1 before the first packet: the first event's own), then the events from there. Word ends in `ends`.
-    Returns the number of packets written; fewer when packet j cannot be (a time before 0 or going back,
-    x or y >= 2048, p > 1, or not room enough in `out` for its worst case): the caller then writes from j
+    Returns the number of packets written; fewer when packet j cannot be (no event, a time before 0 or going
+    back, x or y >= 2048, p > 1, or not room enough in `out` for its worst case): the caller then writes from j
     one by one, which says why. One call for a batch's packets: the GIL is given up once, not per packet."""
     m = len(bounds) - 1
     k = 0
@@ -468,6 +468,8 @@ def _encode_packets_kernel(t, x, y, p, bounds, high, out, ends):
     for j in range(m):
         a = bounds[ix(j)]
         b = bounds[ix(j + 1)]
+        if b <= a:  # no event: its first and last would be read from outside it
+            return j
         t0 = t[ix(a)]
         if t0 < 0:
             return j
