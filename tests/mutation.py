@@ -13,8 +13,9 @@ lines removed (`plain_kernels`): there they run as plain Python and mutmut mutat
 function; everything not being mutated stays compiled. A function's `functools.cache` goes too: a
 kernel factory's nested kernel is then mutated with it, and no cache warmed by mutmut's clean run (in
 the process each mutant is forked from) answers for mutated code (`event_packet._layout`'s did for
-`_string`: its mutants "survived" every test). Only functions calling a numba `@intrinsic` (no
-plain-Python form) stay compiled. The work tree is never changed: normal runs are the same code.
+`_string`: its mutants "survived" every test). Kernels calling a numba `@intrinsic` (no plain-Python
+form) stay compiled, and so do those a compiled kernel calls (`kept_compiled`: compiled code cannot call
+a plain function). The work tree is never changed: normal runs are the same code.
 Numba's cache goes to a fresh folder per run, so no compiled code outlives a run.
 """
 
@@ -376,22 +377,68 @@ def _is_cache(dec: ast.expr) -> bool:
     return isinstance(f, ast.Attribute) and f.attr in ("cache", "lru_cache")
 
 
-def plain_kernels(source: str) -> str:
+def _called(call: ast.Call) -> str | None:
+    f = call.func
+    return f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else None
+
+
+def _is_intrinsic(f: ast.FunctionDef) -> bool:
+    return any(isinstance(d.func if isinstance(d, ast.Call) else d, ast.Name)
+               and (d.func if isinstance(d, ast.Call) else d).id == "intrinsic" for d in f.decorator_list)
+
+
+def kept_compiled(sources: dict[str, str], mutated: set[str]) -> set[str]:
+    """The kernels of the files `mutated` (of `sources`, path -> source) that stay compiled, by name: those
+    calling an `@intrinsic` (it has no Python form), and those a compiled kernel calls, since compiled code
+    cannot call a plain-Python function: a kernel of a file not mutated (represent's `voxel_take` calls
+    overlap's `frame_part`), or one kept itself (density's kernel, kept for `_head_group`, calls rowsum's
+    `column_sum`). Names are matched without their module: a clash keeps more compiled, never less."""
+    trees = {path: ast.parse(src) for path, src in sources.items()}
+    functions = [(path, f) for path, tree in trees.items() for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)]
+    intrinsics = {f.name for _, f in functions if _is_intrinsic(f)}
+    kernels = {(path, f.name): {_called(c) for c in ast.walk(f) if isinstance(c, ast.Call)}
+               for path, f in functions if any(_is_njit(d) for d in f.decorator_list)}
+    compiled = {k for k, calls in kernels.items() if k[0] not in mutated or calls & intrinsics}
+    while more := {k for k in kernels if k not in compiled and k[1] in set().union(*(kernels[c] for c in compiled))}:
+        compiled |= more
+    return {name for path, name in compiled if path in mutated}
+
+
+def plain_kernels(source: str, keep: set[str] = frozenset()) -> str:
     """`source` with its numba kernels as plain Python: `@njit` lines removed (kept on functions calling
-    an `@intrinsic`: numba-only), and every `functools.cache` / `lru_cache` (see the module's doc)."""
+    an `@intrinsic`: numba-only, and on those named in `keep`), and every `functools.cache` / `lru_cache`
+    (see the module's doc)."""
     tree = ast.parse(source)
-    intrinsics = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)
-                  and any(isinstance(d, ast.Name) and d.id == "intrinsic" for d in f.decorator_list)}
+    intrinsics = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and _is_intrinsic(f)}
     drop: set[int] = set()
     for f in ast.walk(tree):
         if not isinstance(f, ast.FunctionDef):
             continue
-        calls = {c.func.id for c in ast.walk(f) if isinstance(c, ast.Call) and isinstance(c.func, ast.Name)}
+        calls = {_called(c) for c in ast.walk(f) if isinstance(c, ast.Call)}
         for dec in f.decorator_list:
-            if (_is_njit(dec) and not calls & intrinsics) or _is_cache(dec):
+            if (_is_njit(dec) and not calls & intrinsics and f.name not in keep) or _is_cache(dec):
                 drop.update(range(dec.lineno - 1, dec.end_lineno))  # the `@` is on dec.lineno
     lines = source.splitlines(keepends=True)
     return "".join(line for i, line in enumerate(lines) if i not in drop)
+
+
+def package_sources() -> dict[str, str]:
+    """Every module of the package as it installs (named as in the copy: evstream/..., evstream/sources/...,
+    evstream/sinks/...) -> its source in the work tree."""
+    out = {}
+    for where, base in (("evstream", ROOT / "evstream"), ("evstream/sources", ROOT / "sources"),
+                        ("evstream/sinks", ROOT / "sinks")):
+        for path in sorted(base.rglob("*.py")):
+            out[f"{where}/{path.relative_to(base)}"] = path.read_text()
+    return out
+
+
+def plain_sources(name: str, sources: dict[str, str] | None = None) -> dict[str, str]:
+    """Target `name`'s files to mutate, as its copy has them (`plain_kernels`, keeping `kept_compiled`)."""
+    sources = sources or package_sources()
+    mutated = {path for pattern in TARGETS[name][0] for path in fnmatch.filter(sources, pattern)}
+    keep = kept_compiled(sources, mutated)
+    return {path: plain_kernels(sources[path], keep) for path in sorted(mutated)}
 
 
 def _source_of(copy_path: str) -> Path:
@@ -457,17 +504,14 @@ def _config(name: str, ws: Path, tests: list[str]) -> None:
 def workspace(name: str, ws: Path, tests: list[str]) -> Path:
     """`ws`: the package as it installs (sources/ and sinks/ inside evstream/), the tests, the shipped
     recordings and a pyproject.toml whose [tool.mutmut] names what to mutate and the tests to run."""
-    mutate = TARGETS[name][0]
     shutil.rmtree(ws, ignore_errors=True)
     shutil.copytree(ROOT / "evstream", ws / "evstream", ignore=IGNORE)
     for sub in ("sources", "sinks"):
         shutil.copytree(ROOT / sub, ws / "evstream" / sub, ignore=IGNORE)
     shutil.copytree(ROOT / "tests", ws / "tests", ignore=IGNORE)
     shutil.copytree(ROOT / "recordings", ws / "recordings")
-    for pattern in mutate:
-        for path in ws.glob(pattern):
-            if path.suffix == ".py":
-                path.write_text(plain_kernels(path.read_text()))
+    for path, source in plain_sources(name).items():
+        (ws / path).write_text(source)
     _config(name, ws, tests)
     return ws
 
@@ -506,12 +550,8 @@ def mutmut(ws: Path, names: list[str]) -> dict[str, str]:
 
 def _same_sources(name: str, ws: Path) -> bool:
     """Whether the copy in `ws` was made from the files to mutate as they are now."""
-    for pattern in TARGETS[name][0]:
-        for path in ws.glob(pattern):
-            src = _source_of(str(path.relative_to(ws)))
-            if path.suffix == ".py" and plain_kernels(src.read_text()) != path.read_text():
-                return False
-    return True
+    return all((ws / path).is_file() and (ws / path).read_text() == source
+               for path, source in plain_sources(name).items())
 
 
 def functions(source: str, module: str) -> dict[str, str]:
@@ -627,14 +667,19 @@ def _redo(ws: Path) -> set[str]:
     return set((ws / "inproc.redo").read_text().split()) if (ws / "inproc.redo").is_file() else set()
 
 
-def forget_redone(ws: Path) -> None:
-    """After a passing control run: drop the verdicts of the mutants `--again` runs again. Before it, a
-    failing control (tests newer than the copy's sources, a broken set-up) leaves every verdict there."""
+def forget_redone(ws: Path, todo: list[str]) -> None:
+    """After a passing control run: drop the verdicts of the mutants `--again` asked for that this run
+    will run (`todo`). Before it, a failing control (tests newer than the copy's sources, a broken set-up)
+    leaves every verdict there; those asked for and not run yet stay asked for."""
     redo = _redo(ws)
-    if redo:
-        kept = [v for m, v in _verdicts(ws / "inproc.json").items() if m not in redo]
+    gone = redo & set(todo)
+    if gone:
+        kept = [v for m, v in _verdicts(ws / "inproc.json").items() if m not in gone]
         (ws / "inproc.json").write_text("".join(json.dumps(v) + "\n" for v in kept))
-        (ws / "inproc.redo").unlink()
+    if redo - gone:
+        (ws / "inproc.redo").write_text("\n".join(sorted(redo - gone)))
+    else:
+        (ws / "inproc.redo").unlink(missing_ok=True)
 
 
 def _running(path: Path) -> dict:
@@ -704,8 +749,14 @@ def inproc(name: str, only: list[str] = (), again: bool = False, sample: int = 0
     """Run module `name`'s mutants (those matching `only`, if given; a random `sample` of them, the same
     for the same mutants) in-process; the score as `run`'s, over the mutants run."""
     ws = _copy(name, OUT / name, TARGETS[name][1])
-    if (ws / "mutants").is_dir():  # a resumed copy: the tests as they are now
+    if (ws / "mutants").is_dir():  # a resumed copy: the tests, and the modules it does not mutate, as they are now
         shutil.copytree(ROOT / "tests", ws / "mutants" / "tests", dirs_exist_ok=True, ignore=IGNORE)
+        mutated = plain_sources(name)
+        for path, source in package_sources().items():
+            copy = ws / "mutants" / path
+            if path not in mutated and (not copy.is_file() or copy.read_text() != source):
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                copy.write_text(source)
     names = generate(ws)
     if only:  # in the order of the globs: the first given run first
         names = [m for g in only for m in names if fnmatch.fnmatchcase(m, g)]
@@ -817,11 +868,12 @@ def worker(name: str) -> int:
         return rec
 
     base = clean("before the mutants")
-    forget_redone(ws)  # --again: the old verdicts go now that the control has passed
+    todo = (ws / "inproc.todo").read_text().split()
+    forget_redone(ws, todo)  # --again: the old verdicts go now that the control has passed
     limits = {t: 5 * c + 5 for t, c in base.cpu.items()}
     rss_mb = 2 * resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 + 1024  # ru_maxrss: KiB
     with open(ws / "inproc.json", "a") as out:
-        for mutant in (ws / "inproc.todo").read_text().split():
+        for mutant in todo:
             fn = mutant.partition("__mutmut_")[0]
             tests = sorted(base.reach.get(fn) or base.cpu, key=base.cpu.get)
             running(mutant=mutant, rss_mb=rss_mb)

@@ -151,11 +151,51 @@ def test_again_forgets_the_old_verdicts_only_once_the_control_run_has_passed(tmp
     (tmp_path / "inproc.redo").write_text("f__mutmut_1\nf__mutmut_3")  # as `inproc(..., again=True)` does
     assert mutation._redo(tmp_path) == {"f__mutmut_1", "f__mutmut_3"}
     assert (tmp_path / "inproc.json").read_text() == before  # a control failing now leaves them all
-    mutation.forget_redone(tmp_path)  # the control passed
+    mutation.forget_redone(tmp_path, ["f__mutmut_1", "f__mutmut_4"])  # the control passed; f__mutmut_3 not run now
+    assert list(mutation._verdicts(tmp_path / "inproc.json")) == ["f__mutmut_2", "f__mutmut_3"]
+    assert mutation._redo(tmp_path) == {"f__mutmut_3"}  # still asked for, its old verdict still there
+    mutation.forget_redone(tmp_path, ["f__mutmut_3"])
     assert list(mutation._verdicts(tmp_path / "inproc.json")) == ["f__mutmut_2"]
     assert mutation._redo(tmp_path) == set()
-    mutation.forget_redone(tmp_path)  # a restarted worker (after a crash) forgets nothing more
+    mutation.forget_redone(tmp_path, ["f__mutmut_2"])  # a restarted worker (after a crash) forgets nothing more
     assert list(mutation._verdicts(tmp_path / "inproc.json")) == ["f__mutmut_2"]
+
+
+def test_a_kernel_a_compiled_kernel_calls_stays_compiled():
+    """Compiled code cannot call a plain-Python function. So in a target's copy a kernel stays compiled
+    (and is not mutated) when a compiled kernel calls it: one of a module not mutated, or one kept compiled
+    itself, for an `@intrinsic` it calls (which has no Python form), or in turn."""
+    sources = {
+        "evstream/a.py": textwrap.dedent("""
+            @intrinsic
+            def _vector(typingctx, x):
+                pass
+
+            @njit
+            def alone(x):
+                return x + 1
+
+            @njit
+            def called_from_b(x):
+                return deeper(x)
+
+            @njit
+            def deeper(x):
+                return x
+
+            @njit(cache=True)
+            def uses_intrinsic(x):
+                return from_c(_vector(x))
+        """),
+        "evstream/b.py": "@njit\ndef caller(x):\n    return a.called_from_b(x)\n\n"
+                         "def python(x):\n    return alone(x)\n",
+        "evstream/c.py": "@njit\ndef from_c(x):\n    return x\n\n@njit\ndef free(x):\n    return x\n",
+    }
+    assert mutation.kept_compiled(sources, {"evstream/a.py"}) == {"called_from_b", "deeper", "uses_intrinsic"}
+    assert mutation.kept_compiled(sources, {"evstream/a.py", "evstream/b.py", "evstream/c.py"}) == {
+        "uses_intrinsic", "from_c"}
+    plain = mutation.plain_kernels(sources["evstream/a.py"], {"called_from_b", "deeper"})
+    assert plain.count("@njit") == 3 and "@njit\ndef alone" not in plain
 
 
 def test_every_target_runs_the_tests_that_import_its_functions(monkeypatch):
