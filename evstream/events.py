@@ -371,7 +371,7 @@ class Validator:
             prev = self.last_t if first_back else chunk.t[i - 1]
             e = EventError(
                 f"{self.where}: event {base + i}: timestamp {chunk.t[i]} µs goes back from {prev} µs "
-                f"(pass a timestamp policy of 'sort' or 'drop' to accept such streams)"
+                f"(to accept such streams: --timestamps sort|drop, timestamps=\"sort\" in Python)"
             )
             e.event_index = base + i  # a reader with fixed-size records turns it into a byte offset
             raise e

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evstream.events import EventChunk, EventError, Geometry, TimestampPolicy, Validator
+from evstream.events import EventChunk, EventError, Geometry, TimestampPolicy, Validator, shown
 from evstream.jit import njit
 
 DEFAULT_CHUNK_EVENTS = 50_000
@@ -78,6 +78,8 @@ def as_geometry(g) -> Geometry | None:
 # it, so one corrupt event (x = 60000) or packet is an error naming it, not a 60001x60001 "sensor" whose
 # per-pixel state (13 GiB a stage) exhausts memory. `--geometry` still sets any size.
 MAX_SENSOR_SIDE = 2048
+# how a user gives the sensor's size, on the command line and in Python: said where a file's is missing or wrong
+GEOMETRY_FLAGS = "--geometry WxH, geometry=(W, H) in Python"
 
 
 def fit_geometry(max_x: int, max_y: int, sensors: list[Geometry] | None = None) -> Geometry:
@@ -219,7 +221,7 @@ class FileSource:
         if self.geometry_override is None and g is not None:
             if max(g.width, g.height) > MAX_SENSOR_SIDE:
                 raise self.error(f"the file claims a {g} sensor ({source}), larger than any event camera "
-                                 f"({MAX_SENSOR_SIDE} a side); pass geometry=(width, height) if it is real")
+                                 f"({MAX_SENSOR_SIDE} a side); if it is real: {GEOMETRY_FLAGS}")
             self.geometry = g
             self.geometry_source = source
 
@@ -241,7 +243,7 @@ class FileSource:
 
     def __iter__(self) -> Iterator[EventChunk]:
         if self.geometry is None:
-            raise self.error("no sensor size known; pass geometry=(width, height)")
+            raise self.error(f"no sensor size known; give it: {GEOMETRY_FLAGS}")
         check = Validator(self.geometry, self.path, self.timestamps)
         strict = check.policy is TimestampPolicy.ERROR
         queue = _Queue()
@@ -311,7 +313,7 @@ class FileSource:
                 where = f"in bytes {b.byte_start}..{b.byte_end}"
             else:  # the reader does not know where its events lie in the file (AEDAT4): no "bytes 0..0"
                 where = ""
-            hint = "" if self.geometry_override else " (pass geometry=(width, height) if the file's is wrong)"
+            hint = "" if self.geometry_override else f" (if the file's is wrong: {GEOMETRY_FLAGS})"
             raise EventError(
                 f"{self.path}{' ' + where if where else ''}: event {first_event + i}: ({b.x[i]}, {b.y[i]}) outside the "
                 f"{g} sensor (size from {self.geometry_source}){hint}"
@@ -516,7 +518,7 @@ def to_events(source: FileSource, t, x, y, p, time_unit: str, byte_start: int = 
                                                                and not np.all(a == np.floor(a)))):
                 bad = (a < 0) | (a > 65535) | (a != np.floor(a))
                 i = int(np.argmax(bad))
-                raise source.error(f"event {i} of a block has {name} = {a[i]!r}: not a pixel index",
+                raise source.error(f"event {i} of a block has {name} = {shown(a[i])}: not a pixel index",
                                    byte_start or None)
             a = a.astype(np.uint16)
         cols.append(a)

@@ -34,7 +34,7 @@ from zlib_ng import zlib_ng
 from evstream.events import EventChunk, EventError, Geometry, Validator, concat
 
 from . import npy_stream, npz_writer
-from ._base import MAX_SENSOR_SIDE, check_not_shrunk
+from ._base import GEOMETRY_FLAGS, MAX_SENSOR_SIDE, check_not_shrunk
 
 NAME = "native (.npz)"
 FORMAT = "native"
@@ -128,7 +128,7 @@ class NativeSource:
             self.geometry = geometry or Geometry(self._scalar("width"), self._scalar("height"))
             if geometry is None and max(self.geometry.width, self.geometry.height) > MAX_SENSOR_SIDE:
                 raise EventError(f"{self.path}: the file claims a {self.geometry} sensor, larger than any event "
-                                 f"camera ({MAX_SENSOR_SIDE} a side); pass geometry=(width, height) if it is real")
+                                 f"camera ({MAX_SENSOR_SIDE} a side); if it is real: {GEOMETRY_FLAGS}")
             self.meta = self._meta() if "meta" in files else {}
             self.has_labels = "label" in files
             columns = self._columns()  # every column's header checked here

@@ -603,3 +603,18 @@ def test_ctrl_c_while_the_command_reads_its_flags_is_one_line(tmp_path):
     out = subprocess.run([sys.executable, "-c", CTRL_C_WHILE_THE_FLAGS_ARE_READ, SHIPPED], capture_output=True,
                          text=True, cwd=tmp_path, timeout=120)
     assert (out.returncode, out.stderr, out.stdout) == (130, "evstream: interrupted\n", "")
+
+
+@pytest.mark.parametrize("lines, says", [
+    ("0.1 1 2 1\n0.2 60000 60000 1\n", "(60000, 60000) outside the 2048x2048 sensor (size from fitted to the events "
+                                       "(no size line)) (if the file's is wrong: --geometry WxH, geometry=(W, H) in "
+                                       "Python)"),  # was "pass geometry=(width, height)": Python, not a flag
+    ("0.2 1 2 1\n0.1 1 2 1\n", "timestamp 100000 µs goes back from 200000 µs (to accept such streams: --timestamps "
+                               "sort|drop, timestamps=\"sort\" in Python)"),
+    ("100 1 2 1\n200 3000000000 2 1\n", "event 1 of a block has x = 3000000000.0: not a pixel index"),  # np.float64(
+])
+def test_a_text_recording_that_cannot_work_says_what_to_type(tmp_path, capsys, lines, says):
+    path = tmp_path / "events.txt"
+    path.write_text(lines)
+    rc, _, err = run(["info", path], capsys)
+    assert rc == 1 and says in one_line_error(err)

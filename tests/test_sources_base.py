@@ -194,8 +194,8 @@ def test_a_timestamp_going_back_names_its_byte_whatever_the_chunk_straddles(tmp_
     b = min(a + chunk_events, len(t))
     spans = byte_of[a:b]
     back_to_back = all(p[1] == q[0] for p, q in zip(spans, spans[1:]))
-    what = (f"event {bad}: timestamp {t_bad} µs goes back from {t[bad - 1]} µs (pass a timestamp policy of 'sort' "
-            "or 'drop' to accept such streams)")
+    what = (f"event {bad}: timestamp {t_bad} µs goes back from {t[bad - 1]} µs (to accept such streams: --timestamps "
+            "sort|drop, timestamps=\"sort\" in Python)")
     if kind == "records" and back_to_back:
         want = f"{src.path} at byte {byte_of[bad][0]}: {what}"
     elif kind == "none":
@@ -224,7 +224,8 @@ def test_the_byte_named_when_a_chunk_straddles_blocks(tmp_path):
 
     path = tmp_path / "rec.bin"
     path.write_bytes(b"\0" * 100)
-    back = "timestamp 0 µs goes back from {} µs (pass a timestamp policy of 'sort' or 'drop' to accept such streams)"
+    back = ("timestamp 0 µs goes back from {} µs (to accept such streams: --timestamps sort|drop, "
+            "timestamps=\"sort\" in Python)")
     for spans, rb, bad, polarity, want, *sizes in (
         ([(10, 25), (25, 40), (40, 55)], [5, 5, 5], 5, False, f"{path} at byte 35: event 5: {back.format(40)}"),
         ([(10, 25), (25, 40), (43, 58)], [5, 5, 5], 5, False, f"{path}: event 5: {back.format(40)} [in bytes 30..53]"),
@@ -260,7 +261,7 @@ def test_an_event_outside_the_sensor_names_its_byte_and_index(tmp_path_factory, 
                  **options)
     where = {"records": f" at byte {byte_of[bad][0]}", "ranges": f" in bytes {byte_of[bad][0]}..{byte_of[bad][1]}",
              "none": f" at byte {1000 + 3 * bad}" if located else ""}[kind]
-    hint = "" if override else " (pass geometry=(width, height) if the file's is wrong)"
+    hint = "" if override else " (if the file's is wrong: --geometry WxH, geometry=(W, H) in Python)"
     origin = "option" if override else "test"
     want = f"{src.path}{where}: event {bad}: ({x}, {y}) outside the 64x32 sensor (size from {origin}){hint}"
     with pytest.raises(EventError, match="^" + re.escape(want) + "$"):
@@ -270,7 +271,7 @@ def test_an_event_outside_the_sensor_names_its_byte_and_index(tmp_path_factory, 
 def test_an_event_outside_the_sensor_from_a_reader_that_cannot_tell_bytes(tmp_path):
     z = np.zeros(3, np.uint16)
     src = source(tmp_path, [Block(np.arange(3), z, np.array([0, 0, 40], np.uint16), z.astype(np.uint8))], 9)
-    want = f"{src.path}: event 2: (0, 40) outside the 64x32 sensor (size from test) (pass geometry="
+    want = f"{src.path}: event 2: (0, 40) outside the 64x32 sensor (size from test) (if the file's is wrong: --geometry"
     with pytest.raises(EventError, match="^" + re.escape(want)):
         list(src)
 
@@ -311,7 +312,7 @@ def test_options_are_checked_and_defaulted(tmp_path):
     for bad in ({"chunk_events": 0}, {"chunk_us": 0}, {"chunk_events": -1}):
         with pytest.raises(ValueError, match="^chunk_events and chunk_us must be positive$"):
             FileSource(tmp_path / "f", **bad)
-    with pytest.raises(EventError, match=rf"^{re.escape(src.path)}: no sensor size known; pass geometry"):
+    with pytest.raises(EventError, match=rf"^{re.escape(src.path)}: no sensor size known; give it: --geometry WxH"):
         list(FileSource(tmp_path / "f"))
     src.set_geometry(Geometry(9, 9), "header")  # the user's size wins
     assert (src.geometry, src.geometry_source) == (Geometry(3, 2), "option")
@@ -322,7 +323,7 @@ def test_options_are_checked_and_defaulted(tmp_path):
     assert (src.geometry, src.geometry_source) == (Geometry(2048, 1), "header")
     for g in (Geometry(2049, 1), Geometry(1, 2049)):
         with pytest.raises(EventError, match=rf"^{re.escape(src.path)}: the file claims a {g} sensor \(header\), "
-                                             r"larger than any event camera \(2048 a side\); pass geometry="):
+                                             r"larger than any event camera \(2048 a side\); if it is real: --"):
             src.set_geometry(g, "header")
     assert src.error("why", 0).args[0] == f"{src.path} at byte 0: why"
     assert src.error("why").args[0] == f"{src.path}: why"
