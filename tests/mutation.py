@@ -66,7 +66,8 @@ TARGETS = {
     # the packet payloads: checked by the packet codec's tests (mono and EVT3 packets against references)
     # and the MCAP archive's
     "codecs_payloads": ([CODECS + "mono.py", CODECS + "packets.py"],
-                        ["tests/test_event_packet.py", "tests/test_mcap_archive.py", "tests/test_zenoh_attachment.py"]),
+                        ["tests/test_event_packet.py", "tests/test_mcap_archive.py", "tests/test_zenoh_attachment.py",
+                         "tests/test_codecs_evt3.py"]),
     # the paper's cascade (the default denoiser) and the baselines; learned/ has its own tests
     "denoise_cascade": ([DENOISE + f for f in ("base.py", "cascade.py", "common.py", "density.py",
                                                "rowsum.py", "timeseries.py")],
