@@ -6,7 +6,6 @@ Nothing here imports a command module; every command module imports from here.
 from __future__ import annotations
 
 import math
-import os
 import shutil
 import signal
 import sys
@@ -69,16 +68,6 @@ def not_the_input(source: str, out, flag: str, what: str = "the input recording"
         check_not_input(out, [source], flag, what) if out else None
     except OutputIsInput as e:
         raise UsageError(str(e)) from None
-
-
-def check_rrd_name(save, flag: str = "--save ") -> None:
-    """A Rerun recording goes to a name ending in .rrd (or into a device, /dev/null): `--save x.mcap` wrote
-    one under a name that says MCAP, or over a recording `x.npz`."""
-    from evstream.safe_write import is_special
-
-    if save and Path(save).suffix.lower() != ".rrd" and not is_special(Path(save)):
-        raise UsageError(f"{flag}{save}: a Rerun recording's name ends in .rrd (an MCAP archive: evstream archive "
-                         "REC OUT.mcap; another recording format: evstream convert)")
 
 
 def check_numbers(args, *, at_least_zero=(), positive=()) -> None:
@@ -293,18 +282,3 @@ class StopOnSignal:
             yield chunk
             if self.signum is not None:
                 return
-
-
-def rerun_command() -> str:
-    """How to start the Rerun viewer from this shell: `rerun` when it is on PATH, else the one installed
-    beside this Python (after `make demo`, `.venv/bin/rerun`: the venv is not activated)."""
-    if shutil.which("rerun"):
-        return "rerun"
-    beside = Path(sys.executable).parent / "rerun"
-    if not beside.exists():
-        return "rerun"
-    try:
-        return os.path.relpath(beside) if not os.path.relpath(beside).startswith("..") else str(beside)
-    except ValueError:  # another drive (Windows)
-        return str(beside)
-

@@ -27,15 +27,14 @@ from .common import (
     add_source_flags,
     attach_framer,
     check_numbers,
-    check_rrd_name,
     create_folder,
     folder_note,
     not_the_input,
     open_recording,
     pipeline_from_args,
-    rerun_command,
     summary_line,
 )
+from .rerun_file import check_rrd_name, rerun_command
 
 
 class LagMeter:

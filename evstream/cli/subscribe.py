@@ -17,11 +17,10 @@ from .common import (
     UsageError,
     add_pipeline_flags,
     check_numbers,
-    check_rrd_name,
     geometry_flag,
-    rerun_command,
 )
 from .live import CLEAN_KEY, add_zenoh_flags, check_endpoints, session_from_args, settle_memory
+from .rerun_file import check_rrd_name, rerun_command
 from .subscriber import Camera, Status, Subscriber, print_summary, wait_readers, warm_up
 
 # At most this many events of a republishing node's backlog are cleaned and republished as one packet
