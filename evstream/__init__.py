@@ -1,13 +1,14 @@
 """evstream: a streaming pipeline for event cameras (sources -> denoise/framing stages -> sinks).
 
 The Python API (docs/api.md) is here: `open`/`read` a recording, `stage`/`framer`/`build_pipeline` by
-name, `classify`/`clean` chunks, streams or structured arrays, `open_sink` to write, `Denoise` as a
-tonic-style transform, `catalogue` to list every stage and framer.
+name, `classify`/`clean` chunks, streams or structured arrays, `open_sink` to write, `Denoise` and
+`Represent` as tonic-style transforms, `catalogue` to list every stage and framer.
 """
 
 from . import _start  # noqa: F401 - first: Ctrl-C while the package loads (evstream/_start.py)
 from .api import (
     Denoise,
+    Represent,
     as_geometry,
     batches,
     build_pipeline,
@@ -30,7 +31,7 @@ from .writers import SinkWriter, archive, convert, open_sink
 __version__ = "0.1.0"
 # `open` is left out of the star-import list: `from evstream import *` must not shadow the builtin
 __all__ = [
-    "Batch", "Denoise", "EventChunk", "EventError", "Frame", "Geometry", "NoiseClass", "Pipeline", "RunStats",
-    "SinkWriter", "archive", "as_geometry", "batches", "build_pipeline", "catalogue", "classify", "clean", "concat",
-    "convert", "framer", "from_structured", "info", "open_sink", "read", "set_params", "stage", "subscribe",
+    "Batch", "Denoise", "EventChunk", "EventError", "Frame", "Geometry", "NoiseClass", "Pipeline", "Represent",
+    "RunStats", "SinkWriter", "archive", "as_geometry", "batches", "build_pipeline", "catalogue", "classify", "clean",
+    "concat", "convert", "framer", "from_structured", "info", "open_sink", "read", "set_params", "stage", "subscribe",
 ]

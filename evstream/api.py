@@ -10,7 +10,8 @@ In the order data flows — source, stages, framer, sinks:
 
 Stages classify, they do not drop: `classify` returns each event's noise class, `clean` the events
 kept (SIGNAL), on a chunk, a stream of chunks or a numpy structured array with fields t, x, y, p (tonic's
-and faery's dtypes; faery's `on` is read as `p`). `Denoise` is the same as a tonic-style transform.
+and faery's dtypes; faery's `on` is read as `p`). `Denoise` is the same as a tonic-style transform,
+`Represent` the framers' learning representations (time surface, voxel grid, ...) as one.
 The command line (`evstream.cli`) is a thin shell over these functions.
 """
 
@@ -403,3 +404,36 @@ class Denoise:
         params = ", ".join(f"{k}={v!r}" for k, v in self.spec.items() if k != "kind")
         return f"Denoise(sensor_size=({self.geometry.width}, {self.geometry.height}), kind={self.spec['kind']!r}" + (
             f", {params})" if params else ")")
+
+
+class Represent:
+    """A tonic-style transform to a learning representation: called on one sample's structured array (t, x,
+    y, p; or an EventChunk), returns every window's representation that the framer `kind` (timesurface,
+    voxel, histogram, count, timestamp; docs/framing.md) gives for it, as one float32 array (windows, C,
+    H, W) — `torch.from_numpy` shares it. Each call starts a fresh framer, so samples stay independent.
+
+        to_voxels = Represent(sensor_size=(346, 260, 2), kind="voxel", bins=5, window_us=50_000)
+    """
+
+    def __init__(self, sensor_size, kind: str = "voxel", **params):
+        from .framing.represent import RepresentationFramer
+
+        self.geometry = as_geometry(sensor_size)
+        self.spec = {"kind": kind, **params}
+        framer = build("framer", self.spec)  # a bad name or parameter fails here, not in a DataLoader worker
+        if not isinstance(framer, RepresentationFramer):
+            ours = [k for k in kinds("framer") if issubclass(factory("framer", k), RepresentationFramer)]
+            raise ValueError(f"Represent: {kind!r} makes frames to look at, not arrays; the representations: "
+                             f"{', '.join(ours)} (window={kind!r} chooses the window)")
+        self.shape = (len(framer.channels), self.geometry.height, self.geometry.width)
+
+    def __call__(self, events) -> np.ndarray:
+        chunk = events if isinstance(events, EventChunk) else from_structured(events, self.geometry)
+        framer = build("framer", self.spec)
+        data = [r.data for r in [*framer.push(chunk), *framer.finish()]]
+        return np.stack(data) if data else np.zeros((0, *self.shape), np.float32)
+
+    def __repr__(self) -> str:
+        params = "".join(f", {k}={v!r}" for k, v in self.spec.items() if k != "kind")
+        return (f"Represent(sensor_size=({self.geometry.width}, {self.geometry.height}), "
+                f"kind={self.spec['kind']!r}{params})")

@@ -403,3 +403,26 @@ def test_a_built_stage_given_the_recording_again_is_an_event_error():
     later = evstream.read(BAR, start_us=50_000, end_us=60_000)
     assert len(evstream.classify(stage, later)) == len(later)  # the recording goes on: in order
     assert len(evstream.clean("paper", again)) > 0 and len(evstream.clean(evstream.stage("paper"), again)) > 0
+
+
+@pytest.mark.parametrize("kind, params", [("voxel", {"bins": 3, "window_us": 20_000}),
+                                          ("timesurface", {"tau_us": 5_000, "window": "fn", "n_events": 700}),
+                                          ("histogram", {"window_us": 15_000})])
+def test_represent_is_a_tonic_style_transform_to_arrays(kind, params):
+    """A tonic user handing a sample's structured array to a framer got "'numpy.ndarray' object has no
+    attribute 'geometry'"; `Represent` is the Denoise of the representations: array in, (windows, C, H, W)
+    float32 out, every window the framer gives for the sample, a fresh framer per call."""
+    chunk = random_stream(7, 5000, G)
+    framer = evstream.framer(kind, **params)
+    want = [r.data for r in [*framer.push(chunk), *framer.finish()]]
+    to_array = evstream.Represent(sensor_size=(40, 30, 2), kind=kind, **params)
+    for sample in (as_dtype(chunk, TONIC), as_dtype(chunk, FAERY), chunk):
+        got = to_array(sample)
+        assert got.dtype == np.float32 and got.flags.c_contiguous and got.shape[0] == len(want) > 1
+        assert np.array_equal(got, np.stack(want))  # the same for each call: no state carried between samples
+    assert to_array(as_dtype(chunk[:0], TONIC)).shape == (0, *want[0].shape)  # no event, no window
+    with pytest.raises(ValueError, match=r"^Represent: 'fw' makes frames to look at, not arrays; the "
+                                         r"representations: .*voxel.*\(window='fw' chooses the window\)$"):
+        evstream.Represent(sensor_size=(40, 30), kind="fw")
+    with pytest.raises(ValueError, match="^voxel: bins must be"):
+        evstream.Represent(sensor_size=(40, 30), kind="voxel", bins=0)  # when made, not in a DataLoader worker
