@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from evstream.events import EventChunk, EventError, Frame, Geometry, NoiseClass, concat
 from evstream.framing import AdaptiveOverlap, FixedCount, FixedWindow, OverlapAccumulation
-from evstream.framing.fixed import FN_FULL, fn_run, fn_scan
+from evstream.framing.fixed import FN_FULL, FN_TIMEOUT, fn_run, fn_scan
 from evstream.pipeline import Pipeline, build, describe, kinds
 from evstream.testing import (
     assert_bounded_state,
@@ -466,6 +466,26 @@ def test_fn_kernels_give_an_empty_frame_no_deadline(use_cls):
     x, y, p = np.array([0, 1, 2], np.uint16), np.array([0, 1, 2], np.uint16), np.array([1, 0, 1], np.uint8)
     assert fn_run(t, x, y, p, cls, use_cls, 0, counts, 4, 12, 0, 2, 100, 150, 500) == (2, 2, 5000, 5001, FN_FULL)
     assert counts.reshape(2, 3, 4)[1, 0, 0] == 1 and counts.reshape(2, 3, 4)[0, 1, 1] == 1 and counts.sum() == 2
+
+
+@pytest.mark.parametrize("use_cls", [False, True])
+@pytest.mark.parametrize("times, have", [
+    ([600, 601], 1),  # the frame holds one event (at 100): an event exactly on its deadline closes it
+    ([700, 701], 1),  # ... and one past it
+    ([900, 901], 3),  # a chunk whose first event is past the deadline of the frame the chunk before left open
+])
+def test_fn_kernels_close_a_frame_on_its_deadline(use_cls, times, have):
+    """The frame [100, 100 + 500) holds `have` events (first at 100, last at 150) when a chunk comes: its
+    first event, at or past the deadline, times the frame out before any is taken, and the frame's first
+    and last times stay as they were."""
+    t = np.array(times, np.int64)
+    cls = np.zeros(len(t), np.uint8)
+    want = (0, have, 100, 150, FN_TIMEOUT)
+    assert fn_scan(t, cls, use_cls, 0, have, 10, 100, 150, 500) == want
+    counts = np.zeros(2 * 3 * 4, np.uint16)
+    x = y = np.zeros(len(t), np.uint16)
+    assert fn_run(t, x, y, x.astype(np.uint8), cls, use_cls, 0, counts, 4, 12, have, 10, 100, 150, 500) == want
+    assert not counts.any()
 
 
 def test_fn_windows_after_a_quiet_stretch_are_the_same_with_a_follower():
