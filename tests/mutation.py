@@ -325,6 +325,16 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "SlidingFramer._reset's frame end, counts and buffers (None, '', float64 for int64): _reset leaves no frame "
     "open (start None), and push calls _first, which sets all of them, before any is read": [
         f"evstream.framing.overlap.xǁSlidingFramerǁ_reset__mutmut_{n}" for n in (2, 4, 9, 11, 15)],
+    "SlidingFramer.push makes room when it need not (tail + n + i for tail + n - i): _make_room compacts (the "
+    "same events, moved to the front) and grows only by its own check; the flat indices' buffer grown longer "
+    "than the times' (size + live): push makes room by the times' length, so the extra is never written": [
+        "evstream.framing.overlap.xǁSlidingFramerǁpush__mutmut_16",
+        "evstream.framing.overlap.xǁSlidingFramerǁ_make_room__mutmut_34"],
+    "SlidingFramer._skip_empty is never called: OA and adaptive each override it (no test reaches it)": [
+        f"evstream.framing.overlap.xǁSlidingFramerǁ_skip_empty__mutmut_{n}" for n in range(1, 10)],
+    "adaptive's jump past empty frames not taken when the frame ends exactly on the watermark w: the frame "
+    "stays current, holds no event (none comes before w), and the next advance to w or later steps it onto "
+    "the same grid (its overlap has settled)": ["evstream.framing.overlap.xǁAdaptiveOverlapǁ_skip_empty__mutmut_14"],
     "NOT equivalent, but no test can tell: the flat index as uint32 for a sensor of 2^31 pixels or more (2 / hw "
     "or 3**32 for 2 * hw < 2**32) wraps there, and such a sensor's count image is 8 GiB; every sensor a test "
     "can hold gets uint32 either way": [

@@ -268,6 +268,8 @@ def test_many_empty_frames_are_bounded_and_the_grid_is_kept():
     ({"kind": "oa", "window_us": 100, "stride_us": 200}, "must not exceed window_us"),
     ({"kind": "adaptive", "window_us": 100, "overlap_max_us": 100}, "less than window_us"),
     ({"kind": "adaptive", "k_us_per_event": -1}, "k_us_per_event"),
+    *(({"kind": "adaptive", "k_us_per_event": k}, f"^adaptive: k_us_per_event must be a finite number >= 0, got {s}$")
+      for k, s in ((float("inf"), "inf"), (float("nan"), "nan"), (True, "True"), ("2", "'2'"), (-0.5, "-0.5"))),
     ({"kind": "adaptive", "overlap_init_us": 6000}, "overlap_init_us"),
     ({"kind": "fw", "all_events": "yes"}, "^fw: all_events must be true or false, got 'yes'$"),
     ({"kind": "fw", "stride_us": 3}, "unknown parameter .stride_us.; its parameters: window_us"),
