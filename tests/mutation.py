@@ -208,7 +208,7 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "to_events: astype(None) is float64, the dtype given; copy=True/None for copy=False changes no value; "
     "np.issubdtype(None, np.floating) holds, and an integer column always equals its floor": [
         f"evstream.sources._base.x_to_events__mutmut_{n}" for n in (20, 38, 40, 41, 58)],
-    "to_events: a bool polarity through (p > 0) gives the same 0/1": ["evstream.sources._base.x_to_events__mutmut_89"],
+    "to_events: a bool polarity through (p > 0) gives the same 0/1": ["evstream.sources._base.x_to_events__mutmut_90"],
     # sources/_base.py (session 8)
     "unwrap: a first value with last = 0 (or the start value +1 / -2 for -1) can never be a wrap: a drop "
     "from 0 or 1 is never more than half the clock": [
@@ -233,18 +233,18 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "_Queue.take: k = None for k = 0 ends the loop the same": [_B + "xǁ_Queueǁtake__mutmut_30"],
     "time_cut never returns 0 (index >= 1 in the first block, which is never empty), so cut <= 0 / < 1 is "
     "cut < 0; and -2 for -1 is below 0 too": [
-        _B + "xǁFileSourceǁ__iter____mutmut_53",
-        _B + "xǁFileSourceǁ__iter____mutmut_54",
+        _B + "xǁFileSourceǁ__iter____mutmut_51",
+        _B + "xǁFileSourceǁ__iter____mutmut_52",
         _B + "xǁ_Queueǁtime_cut__mutmut_28"],
     "guess_columns: rising = fractional when there are 0 or 2+ fractional columns has len != 1 like []; "
     "range(5) adds a 5th index after the two kept; a placeholder other than '' or a 5th '' is overwritten "
     "or joins to nothing": [f"{_B}x_guess_columns__mutmut_{n}" for n in (37, 63, 67, 68)],
     "__iter__'s last chunks: the loop cut until at most chunk_events (or, by time, at most MAX_CHUNK_EVENTS "
     "and no bin boundary) remain, so the rest is one step, k == queue.n, and its watermark is None anyway": [
-        _B + "xǁFileSourceǁ__iter____mutmut_87",
+        _B + "xǁFileSourceǁ__iter____mutmut_85",
+        _B + "xǁFileSourceǁ__iter____mutmut_86",
         _B + "xǁFileSourceǁ__iter____mutmut_88",
-        _B + "xǁFileSourceǁ__iter____mutmut_90",
-        _B + "xǁFileSourceǁ__iter____mutmut_95"],
+        _B + "xǁFileSourceǁ__iter____mutmut_93"],
     "_check_coords: where = None for '' is as falsy": [_B + "xǁFileSourceǁ_check_coords__mutmut_17"],
     "warn's stacklevel (3 -> 4 or default): mutmut's trampoline adds a frame, so no test can see it under "
     "mutmut; outside it, test_dropped_events_are_counted_and_warned_about_where_the_stream_is_read fails on "
