@@ -629,8 +629,9 @@ def test_time_surface_under_many_splits(window):
                                splits=2, one_event=False)
 
 
+@pytest.mark.parametrize("window", sorted(WINDOWS))  # each moves the base its own way (oa, adaptive: `take`)
 @pytest.mark.parametrize("tau_us", [3e5, 1e8])  # int32 newest times (rebased), and int64 ones for long τ
-def test_time_surface_over_hours_matches_the_definition(tau_us):
+def test_time_surface_over_hours_matches_the_definition(tau_us, window):
     """Times past 2^30 µs move the int32 base; pixels then older than 2^31 µs become "never", which is
     exact: their surface is exp(<= −128) = 0 in float32 anyway."""
     rng = np.random.default_rng(4)
@@ -638,9 +639,12 @@ def test_time_surface_over_hours_matches_the_definition(tau_us):
     t = np.sort(np.concatenate([rng.integers(k * 2**30, k * 2**30 + 10**6, 60) for k in (0, 1, 3, 7)]))
     stream = EventChunk.from_arrays(t, rng.integers(0, 5, len(t)), rng.integers(0, 4, len(t)),
                                     rng.integers(0, 2, len(t)), g)
-    spec = {"kind": "timesurface", "window_us": 2**27, "tau_us": tau_us, "max_empty_frames": 2}
+    params = {"fw": {"window_us": 2**27, "max_empty_frames": 2}, "fn": {"n_events": 20},
+              "oa": {"window_us": 2**27, "max_empty_frames": 2},
+              "adaptive": {"window_us": 2**27, "n_base": 30, "max_empty_frames": 2}}[window]
+    spec = {"kind": "timesurface", "window": window, **params, "tau_us": tau_us}
     frames = frames_of(build("framer", spec), [stream])
     assert frames[-1].t_end > 7 * 2**30 and len(frames) > 8
-    for fr, ref in zip(frames, reference("timesurface", stream, frames, "fw", tau_us=tau_us)):
+    for fr, ref in zip(frames, reference("timesurface", stream, frames, window, tau_us=tau_us)):
         np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=1e-30)
     assert_chunk_invariant(lambda: build("framer", spec), stream, 4, apply=frames_of, splits=3)
