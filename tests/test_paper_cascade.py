@@ -152,13 +152,13 @@ def test_density_kernel_widening_its_map_matches_brute_force(seed, n, params, fa
     at any point: every variant still matches the reference (the widened cells are the same counts)."""
     from evstream.denoise import density
 
-    saved = density.UINT16_ROW_MAX, density.FAR_BYTES
-    density.UINT16_ROW_MAX = 3
+    saved = density.UINT8_CELL_MAX, density.FAR_BYTES
+    density.UINT8_CELL_MAX = 3
     density.FAR_BYTES = 0 if far else saved[1]
     try:
         test_density_kernel_matches_brute_force.hypothesis.inner_test(seed, n, params)
     finally:
-        density.UINT16_ROW_MAX, density.FAR_BYTES = saved
+        density.UINT8_CELL_MAX, density.FAR_BYTES = saved
 
 
 @pytest.mark.parametrize("record", [1, 2])

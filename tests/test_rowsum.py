@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from evstream.denoise.rowsum import column_sum, lanes, padded_map, row_add
+from evstream.denoise.rowsum import column_sum, lanes, padded_map, row_add, row_full
 from evstream.jit import Kernel, njit  # numba's own njit cannot type the kernels inside until evstream.jit taught it
 
 
@@ -13,6 +13,14 @@ from evstream.jit import Kernel, njit  # numba's own njit cannot type the kernel
 def _apply(a, pos, delta, L):
     for i in range(len(pos)):
         row_add(a, pos[i], delta[i], L)
+
+
+@njit
+def _full(a, pos, L, limit):
+    out = np.empty(len(pos), np.bool_)
+    for i in range(len(pos)):
+        out[i] = row_full(a, pos[i], L, limit)
+    return out
 
 
 def _columns(a, q, stride, L):
@@ -37,6 +45,21 @@ def test_row_add_matches_a_slice_add(dtype, seed, L):
     for p, d in zip(pos, delta):
         ref[p : p + L] += np.array(d).astype(dtype)  # wraps like the map's cells
     assert np.array_equal(a, ref)  # includes the padding: the lanes past L are left alone
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.int64])
+@given(seed=st.integers(0, 2**32), L=st.sampled_from([1, 3, 5, 7, 8, 9, 16, 17, 33]), top=st.booleans())
+def test_row_full_matches_a_slice_test(dtype, seed, L, top):
+    """Whether one of the L cells is >= the limit (the type's largest value when `top`, as the density stage
+    asks): the lanes past L (set to the limit here) are not looked at."""
+    rng = np.random.default_rng(seed)
+    limit = int(np.iinfo(dtype).max) if top else int(rng.integers(1, 6))
+    a = np.where(rng.random(300 + L + lanes(dtype)) < 0.02, limit, rng.integers(0, limit, 300 + L + lanes(dtype)))
+    a = a.astype(dtype)
+    pos = rng.integers(0, 300, 200)
+    a[pos[:20] + L] = limit  # the cell just past the row
+    expected = [bool((a[p : p + L] >= limit).any()) for p in pos]
+    assert _full(a, pos, L, limit).tolist() == expected
 
 
 @given(seed=st.integers(0, 2**32), L=st.sampled_from([1, 3, 5, 9]))

@@ -31,7 +31,7 @@ def cascade_kernel(coarse, fine):
 
     @njit(cache=True, nogil=True)
     def kernel(t, x, y, p, codes, progress, c_code, hsum, c_width, fifo_t, c_pos, fifo_x, fifo_y, c_state, per_pol,
-               row_count, cell_max, window_us, density_hz, rho_rel, width, height, f_code, live, pixel, rowsum, f_width,
+               cell_max, window_us, density_hz, rho_rel, width, height, f_code, live, pixel, rowsum, f_width,
                f_pos, per_bin, f_state, bin_us, n_bins, lam, above, span_x, span_y):
         """`progress` = [the coarse stage's next event, whether the fine one resumes]: both 0 on a new
         chunk, left where a full FIFO stopped a stage. Returns DONE, COARSE_FULL or FINE_FULL."""
@@ -39,7 +39,7 @@ def cascade_kernel(coarse, fine):
         no_score = np.empty(0, np.float64)
         if progress[0] < n:
             i = coarse(t, x, y, p, progress[0], codes, c_code, hsum, c_width, fifo_t, c_pos, fifo_x, fifo_y, c_state,
-                       per_pol, row_count, cell_max, window_us, density_hz, rho_rel, width, height, no_score)
+                       per_pol, cell_max, window_us, density_hz, rho_rel, width, height, no_score)
             progress[0] = i
             if i < n:
                 return COARSE_FULL

@@ -34,7 +34,7 @@ from ..pipeline import register
 from .base import InPlaceClassifier, fifo_capacity, grow_fifo
 from .common import is_int
 from .prefetch import FAR_BYTES, prefetch
-from .rowsum import MAX_RADIUS_PX, box_area, column_sum, padded_map, row_add
+from .rowsum import MAX_RADIUS_PX, box_area, column_sum, padded_map, row_add, row_full
 
 ABSOLUTE, RELATIVE = 0, 1
 # How far ahead a kernel over a map larger than the L2 cache prefetches (measured at 1280×720 with the
@@ -107,24 +107,21 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
 
     @njit(cache=True, nogil=True)
     def kernel(t, x, y, p, start, codes, noise_code, hsum, padded_width, fifo_t, fifo_pos, fifo_x, fifo_y,
-               fifo_state, per_pol, row_count, cell_max, window_us, density_hz, rho_rel, width, height, out_score):
+               fifo_state, per_pol, cell_max, window_us, density_hz, rho_rel, width, height, out_score):
         """Classify events `start..` whose code is SIGNAL (others are skipped: an earlier stage rejected
         them), writing `noise_code` into `codes` for those in sparse neighbourhoods and, if `want_score`,
-        the score into `out_score`. Returns the index reached: len(t) unless the FIFO is full or a row
-        of `hsum` could pass `cell_max` (the caller grows the FIFO or widens the map, and calls again
-        from there).
+        the score into `out_score`. Returns the index reached: len(t) unless the FIFO is full or a cell
+        the next event adds to is at `cell_max` (the caller grows the FIFO or widens the map, and calls
+        again from there).
 
         `hsum` is a row-summed count map (`rowsum`) of the FIFO's events: one plane, or one per
         polarity with `match_polarity`. The FIFO holds each event's time and its map position
         (`fifo_pos`, `far`) or column and row (`fifo_x`; `fifo_y` plus `height + 2r + 1` on the ON plane
-        with `match_polarity`; `fifo_y` also with `far`, beside the position);
-        `fifo_state` = [head, size, headroom]; `per_pol` counts the FIFO's events per plane; `row_count[r]`
-        those on row r (`fifo_y`'s numbering). A cell counts events of one row, so it is at most that
-        row's count: while no row holds more than `cell_max` (the map's largest value), the cells are
-        exact (a uint16 map, half the bytes of int32, is exact up to 65,535 events on one row in the
-        window). `headroom` events may come before the rows are checked again (cell_max less the fullest
-        row's count, when checked): a test per stretch of events, not per event (that measured ~2 ns of
-        22 at 1280×720); a row within cell_max / 16 of it stops the kernel (the caller widens the map).
+        with `match_polarity`); `fifo_state` = [head, size]; `per_pol` counts the FIFO's events per
+        plane. The cells start as uint8 (a quarter of int32's bytes: at 1280×720 0.9 MB, which stays in
+        the L2 cache beside the fine stage's state); before an event adds to its L cells the kernel tests
+        them against `cell_max` (the type's largest value) in the same vector, and stops there if one is
+        at it (the caller widens the map; the event is judged again, the same, on the next call).
 
         Expiry by groups of G (not `far`): the head advances G entries at a time, once the G-th is
         out of the window (the times are non-decreasing), so the FIFO also holds up to G - 1 events
@@ -136,7 +133,6 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
         mask = cap - 1
         head = fifo_state[0]
         size = fifo_state[1]
-        headroom = fifo_state[2]
         window_s = window_us * 1e-6
         per_area_abs = density_hz * window_s  # absolute: keep iff N >= D_th · area · Δt
         per_area_rel = rho_rel / (width * height)  # relative: keep iff N >= max(1, ρ_rel · area · g / (W·H))
@@ -146,15 +142,9 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
         i = start
         n = len(t)
         while i < n:
-            if headroom == 0:
-                headroom = cell_max - row_count.max()
-                if headroom <= cell_max // 16:
-                    headroom = 0
-                    break
-            stop = min(n, i + cap - size, i + headroom)  # each event pushes at most one: no test inside
+            stop = min(n, i + cap - size)  # each event pushes at most one: no test inside
             if stop == i:
                 break
-            headroom -= stop - i
             while i < stop:
                 if not all_live and codes[ix(i)] != 0:
                     i += 1
@@ -171,7 +161,6 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                     while size > 0 and fifo_t[ix(head)] <= oldest:  # one by one (groups measured slower here)
                         pos = fifo_pos[ix(head)]
                         row_add(hsum, pos, -1, L)
-                        row_count[ix(fifo_y[ix(head)])] -= 1
                         if match_polarity:
                             per_pol[1 if pos >= plane else 0] -= 1
                         head = (head + 1) & mask
@@ -179,7 +168,6 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                 while not far and size >= G and fifo_t[ix(head + G - 1)] <= oldest:  # the head group is out
                     for k in range(G):
                         yk = np.intp(fifo_y[ix(head + k)])
-                        row_count[ix(yk)] -= 1
                         pos = yk * padded_width + np.intp(fifo_x[ix(head + k)]) + radius * padded_width
                         if match_polarity:  # the ON plane's rows are offset by y_plane in fifo_y
                             on = np.intp(yk >= y_plane)
@@ -210,6 +198,9 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                         if match_polarity:
                             same += d & ((fifo_y[q] >= y_plane) == (pl == 1))
                 corner = pl * plane + yi * padded_width + xi  # padded (row y, column x): the box's top-left
+                pos = corner + radius * padded_width  # the event's L cells
+                if row_full(hsum, pos, L, cell_max):  # one would pass its type's largest value: stop before
+                    break  # the event's code is written (an event classed noise is skipped when not all_live)
                 total = column_sum(hsum, corner + radius, padded_width, L) - near
                 area = L * L
                 if clip_border:
@@ -226,23 +217,22 @@ def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_li
                     else:  # density relative to the sensor's mean: keep iff >= rho_rel (and N >= 1)
                         mean_count = area * g / (width * height)
                         out_score[ix(i)] = total / mean_count if mean_count > 0 else (np.inf if total > 0 else 0.0)
-                pos = corner + radius * padded_width
                 row_add(hsum, pos, 1, L)
                 slot = ix((head + size) & mask)
                 fifo_t[slot] = ti
-                fifo_y[slot] = yq
                 if far:
                     fifo_pos[slot] = pos
                 else:  # the position follows from the column and row
                     fifo_x[slot] = xi
-                row_count[ix(yq)] += 1
+                    fifo_y[slot] = yq
                 if match_polarity:
                     per_pol[pl] += 1
                 size += 1
                 i += 1
+            if i < stop:  # stopped for a full cell
+                break
         fifo_state[0] = head
         fifo_state[1] = size
-        fifo_state[2] = headroom
         return i
 
     return kernel
@@ -294,10 +284,10 @@ class DensityFilter(InPlaceClassifier):
         g = chunk.geometry
         r = self.radius_px
         cap = fifo_capacity(g.n_pixels // 16)  # the benchmark scenes' 20 ms windows hold ~n_pixels / 10 events
-        # uint16 cells while no row holds 65,535 events in the window (the kernel stops, `_grow` widens them):
-        # half the bytes of int32, so at 1280×720 the map (1.9 MB, not 3.7) mostly stays in the L2 cache
-        hsum = padded_map(g.width, g.height, r, np.uint16, planes=2 if self.match_polarity else 1)
-        far = 2 * hsum.nbytes > FAR_BYTES  # as int32 cells (the prefetching paths measured best from there)
+        # uint8 cells until one would pass 255 (the kernel stops, `_grow` widens them): a quarter of int32's
+        # bytes, so at 1280×720 the map (0.9 MB, not 3.7) stays in the L2 cache beside the fine stage's
+        hsum = padded_map(g.width, g.height, r, np.uint8, planes=2 if self.match_polarity else 1)
+        far = 4 * hsum.nbytes > FAR_BYTES  # as int32 cells (the prefetching paths measured best from there)
         group = 0 if far else cap  # the group expiry keeps columns and rows (not `far`), not positions
         rows = 2 * (g.height + 2 * r + 1)  # fifo_y's range with match_polarity
         xy = np.uint16 if max(g.width, rows) <= 2**16 - MAX_RADIUS_PX else np.int32  # _head_group: no wrap
@@ -308,10 +298,9 @@ class DensityFilter(InPlaceClassifier):
             "fifo_t": np.zeros(cap, np.int64),
             "fifo_pos": np.zeros(cap - group, np.int32 if len(hsum) < 2**31 else np.int64),  # map positions
             "fifo_x": np.zeros(group, xy),
-            "fifo_y": np.zeros(cap, xy),  # the row, plus height + 2r + 1 on the ON plane (match_polarity)
-            "fifo_state": np.zeros(3, np.int64),
+            "fifo_y": np.zeros(group, xy),  # the row, plus height + 2r + 1 on the ON plane (match_polarity)
+            "fifo_state": np.zeros(2, np.int64),
             "per_pol": np.zeros(2, np.int64),
-            "row_count": np.zeros(rows, np.int64),  # the FIFO's events per row (fifo_y's numbering)
         }
 
     def _run(self, chunk: EventChunk, codes: np.ndarray, want_score: bool, all_live: bool | None = None) -> np.ndarray:
@@ -347,14 +336,13 @@ class DensityFilter(InPlaceClassifier):
 
     def _grow(self) -> None:
         """Make the room the kernel stopped for (it returned early) and bind the new arrays: double the FIFO
-        when it is full, else widen the map's cells to int32 (a row reached the uint16 cells' largest
-        value; every cell is at most its row's count, so the values are exact and copy as they are)."""
+        when it is full, else widen the map's cells (uint8 -> uint16 -> int32 -> int64: one was at its
+        type's largest value; the values copy as they are)."""
         s = self._state
         if s["fifo_state"][1] == len(s["fifo_t"]):
-            grow_fifo(s, ("fifo_t", "fifo_pos", "fifo_y") if self._far else ("fifo_t", "fifo_x", "fifo_y"))
+            grow_fifo(s, ("fifo_t", "fifo_pos") if self._far else ("fifo_t", "fifo_x", "fifo_y"))
         else:
-            s["hsum"] = s["hsum"].astype(np.int32)
-            s["fifo_state"][2] = 0  # headroom: checked again against int32's largest value
+            s["hsum"] = s["hsum"].astype(WIDER[s["hsum"].dtype])
         self._bind()
 
     def _bind(self) -> None:
@@ -363,7 +351,7 @@ class DensityFilter(InPlaceClassifier):
         self._far = s["far"]
         self._options = (r, ABSOLUTE if self.mode == "absolute" else RELATIVE, self.match_polarity, self.clip_border)
         self._args = (int(self.noise_class), s["hsum"], g.width + 2 * r, s["fifo_t"], s["fifo_pos"], s["fifo_x"],
-                      s["fifo_y"], s["fifo_state"], s["per_pol"], s["row_count"], cell_max(s["hsum"].dtype),
+                      s["fifo_y"], s["fifo_state"], s["per_pol"], cell_max(s["hsum"].dtype),
                       self.window_us, float(self.density_hz),
                       float(self.rho_rel), g.width, g.height)
         self._calls = {}  # (want_score, all_live) -> the kernel's call with these arguments bound
@@ -379,10 +367,12 @@ class DensityFilter(InPlaceClassifier):
 
 
 _NO_SCORE = np.zeros(0, np.float64)  # the kernels compiled without the score never touch it
-# The most events one row may hold in the window with uint16 cells (their largest value; tests lower it).
-UINT16_ROW_MAX = 2**16 - 1
+# The type a full map widens to
+WIDER = {np.dtype(np.uint8): np.uint16, np.dtype(np.uint16): np.int32, np.dtype(np.int32): np.int64}
+# The largest value of a uint8 cell (tests lower it, so that random streams widen the map at any point).
+UINT8_CELL_MAX = 2**8 - 1
 
 
 def cell_max(dtype) -> int:
-    """The row count from which the map of `dtype` must widen before an event is added (`row_count`)."""
-    return UINT16_ROW_MAX if dtype == np.uint16 else np.iinfo(dtype).max
+    """The value at which a cell of `dtype` is full: the map widens before an event adds to it."""
+    return UINT8_CELL_MAX if dtype == np.uint8 else np.iinfo(dtype).max

@@ -12,7 +12,8 @@ most 32 bytes; wider rows take several): 8 uint16 cells (16 bytes) for L = 5, no
 reaches past the L cells into the next cache line more often, and over a map larger than the cache that
 line is one more miss (32 bytes against 16 and 8 for the fine stage: cascade at 1280×720 1.6–1.8 ns per
 event slower). The map must have one 32-byte vector's worth of cells after its last row (`padded_map`
-adds them).
+adds them). `row_full` tests the same L cells against a limit in one vector compare: a map of narrow
+cells (the coarse stage's uint8) widens before an add would pass its type's largest value.
 """
 
 from __future__ import annotations
@@ -72,6 +73,47 @@ def _vector_add(cells: int):
 _add_4, _add_8, _add_16, _add_32 = (_vector_add(c) for c in (4, 8, 16, 32))
 
 
+def _vector_full(cells: int):
+    """An intrinsic `full(a, pos, n, limit)`: whether one of a[pos : pos + n] (n <= the vector's cells) is
+    >= limit, as one unaligned load, compare and mask test of a vector of `cells` cells (as `_vector_add`)."""
+
+    def full(typingctx, a, pos, n, limit):
+        from llvmlite import ir  # typing time: numba is loaded (evstream.jit)
+        from numba.core import types
+
+        if not (isinstance(a, types.Array) and a.layout == "C" and isinstance(a.dtype, types.Integer)):
+            return None
+        dtype = a.dtype
+        width = min(cells, VECTOR_BYTES // (dtype.bitwidth // 8))
+
+        def codegen(context, builder, signature, args):
+            ary, p, k, top = args
+            data = context.make_array(signature.args[0])(context, builder, ary).data
+            cell = context.get_value_type(dtype)
+            vec = ir.VectorType(cell, width)
+            i32 = ir.IntType(32)
+            cells_v = builder.load(builder.bitcast(builder.gep(data, [p]), vec.as_pointer()), align=1)
+            one = builder.insert_element(ir.Constant(vec, ir.Undefined), builder.trunc(top, cell), ir.Constant(i32, 0))
+            tops = builder.shuffle_vector(one, ir.Constant(vec, ir.Undefined), ir.Constant(ir.VectorType(i32, width),
+                                                                                          [0] * width))
+            at_top = builder.icmp_unsigned(">=", cells_v, tops) if not dtype.signed else \
+                builder.icmp_signed(">=", cells_v, tops)
+            lanes_in = ir.Constant(ir.VectorType(ir.IntType(1), width), [0] * width)
+            for lane in range(width):  # lane < n; folds when n is a constant
+                on = builder.icmp_signed(">", k, ir.Constant(k.type, lane))
+                lanes_in = builder.insert_element(lanes_in, on, ir.Constant(i32, lane))
+            hit = builder.bitcast(builder.and_(at_top, lanes_in), ir.IntType(width))
+            return builder.icmp_unsigned("!=", hit, ir.Constant(ir.IntType(width), 0))
+
+        return types.boolean(a, types.intp, types.intp, types.int64), codegen
+
+    full.__name__ = full.__qualname__ = f"_full_{cells}"
+    return intrinsic(full)
+
+
+_full_4, _full_8, _full_16, _full_32 = (_vector_full(c) for c in (4, 8, 16, 32))
+
+
 @intrinsic
 def _lanes_of(typingctx, a):
     """Cells per VECTOR_BYTES vector of `a`'s dtype, as a compile-time constant (`a.itemsize` is read at run time)."""
@@ -103,6 +145,24 @@ def row_add(a, pos, delta, L):
     else:
         for k in range(0, L, width):
             _add_32(a, pos + k, delta, min(width, L - k))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def row_full(a, pos, L, limit):
+    """Whether one of a[pos : pos + L] is >= limit (its vectors as `row_add`'s)."""
+    width = _lanes_of(a)
+    if L <= width:
+        if L <= 4:
+            return _full_4(a, pos, L, limit)
+        if L <= 8:
+            return _full_8(a, pos, L, limit)
+        if L <= 16:
+            return _full_16(a, pos, L, limit)
+        return _full_32(a, pos, L, limit)
+    hit = False
+    for k in range(0, L, width):
+        hit |= _full_32(a, pos + k, min(width, L - k), limit)
+    return hit
 
 
 @njit(cache=True, nogil=True, inline="always")
