@@ -7,10 +7,11 @@ this one: O_{i+1} = clip(O_i + k·(n_i − N_base), 0, O_max), s_{i+1} = s_i + �
 events than the baseline, more overlap, a higher frame rate. O is kept in whole µs (each step's
 k·(n_i − N_base) rounded half to even), so frame times are exact integers.
 
-One frame is materialised at a time. The counted events since its start wait in a buffer (time and
-flat pixel index), which is bounded by the events of one window. When the frame closes, the next
-one's counts are derived from it: either subtract the events that leave (those before the next
-start) or rebuild from the buffered events that stay, whichever touches fewer events.
+One frame is materialised at a time. Its counted events that a next frame may share (those in its last
+`_reach_us`) wait in a buffer (time and flat pixel index), bounded by the events of one window. When
+the frame closes, the next one's counts are rebuilt from the buffered events that stay (subtracting
+those that leave cannot work: the frame's earlier events are not buffered, and counts saturate). Each
+frame's part of a chunk is counted and buffered in one kernel call (`slide_kernel`).
 """
 
 from __future__ import annotations
