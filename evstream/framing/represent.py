@@ -175,7 +175,7 @@ def voxel_table(span_us, bins, hw, lo_at, w_lo, w_hi):
     and lo + 1. At the last bin (t* = B − 1): lo = B − 2 and weights +0 and ±1. `bins` >= 2."""
     scale = (bins - 1) / max(1, span_us - 1)
     last = bins - 1
-    for d in range(span_us):
+    for d in range(len(lo_at) // 2):  # lo_at, w_lo, w_hi: 2·span_us long
         lo, w = _bin_of(d, scale)
         if lo == last:
             lo, w = last - 1, np.float32(1)
