@@ -163,7 +163,9 @@ class SlidingFramer(FramerBase):
 
     def _make_room(self, more: int) -> None:
         """Drop the buffered events no frame needs any more; grow the buffer to take `more`. The buffer
-        holds only the current frame's events, so it is bounded by the events of one window."""
+        holds only the current frame's events, and room for the rest of a chunk (`push` asks for that
+        before each kernel call, which buffers only those in the frame's last reach): it is bounded by
+        the events of one window and one chunk, never the stream."""
         live = self.tail - self.head
         if self.head:
             self.buf_t[:live] = self.buf_t[self.head : self.tail]
