@@ -521,6 +521,25 @@ def test_an_overlapping_windows_part_of_a_chunk_in_one_call_matches_plain_python
     pix = (y[i:stop].astype(np.int64) * width + x[i:stop])[keep]
     np.testing.assert_allclose(grid, voxel_plain(t[i:stop][keep], pix, p[i:stop][keep] == 1, t_start, end, bins, hw),
                                atol=1e-5)
+
+    # a buffer without room for the events at or after keep_t (as many as may count): each does nothing and
+    # says how much room it needs; with exactly that room, it runs
+    need = sum(keep_t <= t[k] < end for k in range(i, n))
+    if need:
+        short = tail + need - 1
+        counts, buf_t, buf_f, last, out = (start_counts.copy(), buf_t0[:short].copy(), buf_f0[:short].copy(),
+                                           last0.copy(), np.full(size, np.nan, np.float32))
+        before = [a.tolist() for a in (counts, buf_t, buf_f, last)]
+        assert slide_kernel(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f,
+                            tail) == (stop, -1, need)
+        assert last_time_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail, base,
+                              last) == (stop, -1, need)
+        assert voxel_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail, t_start,
+                          lo_at, w_lo, w_hi, out, 0) == (stop, -1, need, 0)
+        assert [a.tolist() for a in (counts, buf_t, buf_f, last)] == before and np.isnan(out).all()
+        counts, buf_t, buf_f = start_counts.copy(), buf_t0[: short + 1].copy(), buf_f0[: short + 1].copy()
+        got = slide_kernel(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail)
+        assert (*got, counts.tolist()) == (*want[:3], want[3])
     assert new_tail - tail <= stop - i
 
 

@@ -87,9 +87,11 @@ def frame_part(t, i, end, keep_t):
 def slide_kernel(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_t, buf_f, tail):
     """The current frame's part of a chunk in one call: from event i up to the first event at or past `end`
     (`stop`), count the counted events into the flat `counts` (saturating) and buffer those at or after
-    `keep_t` at buf_t/buf_f[tail:] (the caller leaves room for every event from i on). Returns (stop, the
-    new tail, how many counted)."""
+    `keep_t` at buf_t/buf_f[tail:]. Returns (stop, the new tail, how many counted), or, doing nothing when
+    the buffer has no room for the events it may buffer, (stop, −1, how many that is)."""
     stop, mid = frame_part(t, i, end, keep_t)
+    if tail + stop - mid > len(buf_t):
+        return stop, -1, stop - mid
     added = accumulate(x, y, p, cls, use_cls, i, mid, counts, width, hw)
     k = buffer_events(t, x, y, p, cls, use_cls, mid, stop, width, hw, buf_t, buf_f, tail)
     add_flat(counts, buf_f, tail, tail + k)
@@ -106,11 +108,11 @@ class SlidingFramer(FramerBase):
     # them for the frame in the same pass (one pass over the events instead of two): in stream order,
     # `follower.take(chunk, cls, use_cls, i, start, end, keep_t, counts, buf_t, buf_f, tail)` does what
     # `slide_kernel` does for the frame [start, end) (counts the chunk's events from i up to `end` into
-    # its `counts`, buffers those at or after keep_t, returns (stop, tail, how many counted)) and adds
-    # them to its own array; `follower.add_flat(t, f, start, end, counts)` counts buffered events (times,
-    # flat indices, all counted) as `add_flat` does: those a new frame starts with when the previous
-    # one closes; `follower.closed(frame)` is called as each frame is emitted, before any later event
-    # is taken.
+    # its `counts`, buffers those at or after keep_t, returns (stop, tail, how many counted), or (stop,
+    # −1, the room it needs) doing nothing) and adds them to its own array; `follower.add_flat(t, f,
+    # start, end, counts)` counts buffered events (times, flat indices, all counted) as `add_flat` does:
+    # those a new frame starts with when the previous one closes; `follower.closed(frame)` is called as
+    # each frame is emitted, before any later event is taken.
     follower = None
 
     def _reset(self) -> None:
@@ -144,16 +146,18 @@ class SlidingFramer(FramerBase):
             n = len(chunk)
             i = 0
             while True:  # one kernel call per frame's part of the chunk
-                if self.tail + n - i > len(self.buf_t):
-                    self._make_room(n - i)
                 keep_t = self.end - self._reach_us
                 if self.follower is None:
-                    i, self.tail, added = slide_kernel(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, self.end,
-                                                       keep_t, self._width, self._hw, self.counts, self.buf_t,
-                                                       self.buf_f, self.tail)
+                    stop, tail, added = slide_kernel(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, self.end,
+                                                     keep_t, self._width, self._hw, self.counts, self.buf_t,
+                                                     self.buf_f, self.tail)
                 else:
-                    i, self.tail, added = self.follower.take(chunk, cls, use_cls, i, self.start, self.end, keep_t,
-                                                             self.counts, self.buf_t, self.buf_f, self.tail)
+                    stop, tail, added = self.follower.take(chunk, cls, use_cls, i, self.start, self.end, keep_t,
+                                                           self.counts, self.buf_t, self.buf_f, self.tail)
+                if tail < 0:  # no room in the buffer for the `added` events it would buffer: nothing done
+                    self._make_room(added)
+                    continue
+                i, self.tail = stop, tail
                 self.n += added
                 if i == n:
                     break
@@ -163,9 +167,8 @@ class SlidingFramer(FramerBase):
 
     def _make_room(self, more: int) -> None:
         """Drop the buffered events no frame needs any more; grow the buffer to take `more`. The buffer
-        holds only the current frame's events, and room for the rest of a chunk (`push` asks for that
-        before each kernel call, which buffers only those in the frame's last reach): it is bounded by
-        the events of one window and one chunk, never the stream."""
+        holds only the current frame's events (and room for those of its last reach in a chunk, which a
+        kernel call asks for when it lacks it), so it is bounded by the events of one window."""
         live = self.tail - self.head
         if self.head:
             self.buf_t[:live] = self.buf_t[self.head : self.tail]

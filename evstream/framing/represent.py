@@ -265,8 +265,10 @@ def voxel_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, buf_
     """An overlapping window's part of a chunk in one call (`SlidingFramer.follower.take`): what
     `slide_kernel` does (count the events from i up to `end`, buffer those at or after keep_t), each event
     also added to the window's voxel grid, through the table, in stream order. Returns (stop, the new
-    tail, how many counted, `ready`)."""
+    tail, how many counted, `ready`), or (stop, −1, the room needed, `ready`) doing nothing, as it."""
     stop, mid = frame_part(t, i, end, keep_t)
+    if tail + stop - mid > len(buf_t):
+        return stop, -1, stop - mid, ready
     added, ready = voxel_count_of_chunk(t, x, y, p, cls, use_cls, i, mid, t_start, width, hw, lo_at, w_lo, w_hi,
                                         counts, out, ready)
     k = buffer_events(t, x, y, p, cls, use_cls, mid, stop, width, hw, buf_t, buf_f, tail)
@@ -323,8 +325,10 @@ def last_time_take(t, x, y, p, cls, use_cls, i, end, keep_t, width, hw, counts, 
     """An overlapping window's part of a chunk in one call (`SlidingFramer.follower.take`): what
     `slide_kernel` does (count the events from i up to `end`, buffer those at or after keep_t), each event
     also made its pixel's newest time as `last_time_of` does. Returns (stop, the new tail, how many
-    counted)."""
+    counted), or (stop, −1, the room needed) doing nothing, as it."""
     stop, mid = frame_part(t, i, end, keep_t)
+    if tail + stop - mid > len(buf_t):
+        return stop, -1, stop - mid
     floor = np.iinfo(last_t.dtype).min
     added = 0
     for k in range(i, mid):
@@ -548,13 +552,15 @@ class RepresentationFramer(FramerBase):
              buf_t, buf_f, tail: int) -> tuple[int, int, int]:
         """Called by an overlapping windowing framer (`SlidingFramer.follower`): `slide_kernel` (count the
         chunk's events from i up to t_end, buffer those at or after keep_t) for the window [t_start, t_end),
-        the events also added to its array. Returns (stop, the new tail, how many counted)."""
+        the events also added to its array. Returns what `slide_kernel` returns."""
         grid = self._window_grid(t_start)
         got = self._count_take(chunk, cls, use_cls, i, t_start, t_end, keep_t, counts, buf_t, buf_f, tail, grid)
         if got is not None:
             return got
         stop, end, added = slide_kernel(chunk.t, chunk.x, chunk.y, chunk.p, cls, use_cls, i, t_end, keep_t,
                                         self._width, self._hw, counts, buf_t, buf_f, tail)
+        if end < 0:  # no room: nothing done
+            return stop, end, added
         mid = i + int(np.searchsorted(chunk.t[i:stop], keep_t))
         if mid > i:
             self._add(chunk.t[i:mid], chunk.x[i:mid], chunk.y[i:mid], chunk.p[i:mid], cls[i:mid], use_cls, t_start,
