@@ -351,6 +351,16 @@ def ranking(rows: list[dict], min_ratio: float = 0.5) -> dict[str, dict[str, flo
     return {m: {k: float(np.mean(v)) if v else math.nan for k, v in d.items()} for m, d in out.items()}
 
 
+def check_can_plot(what: str) -> None:
+    """An OSError naming `what` when matplotlib (an optional dependency: `pip install evstream[eval]`) is
+    not installed."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise OSError(f"{what}: the ROC plot needs matplotlib, which is not installed (pip install matplotlib; "
+                      "or leave out --roc)") from None
+
+
 def plot_roc(curves: dict, condition: str, path) -> None:
     """One panel per recording: every method's ROC at one noise condition, to a PNG (matplotlib)."""
     import matplotlib

@@ -618,3 +618,15 @@ def test_a_text_recording_that_cannot_work_says_what_to_type(tmp_path, capsys, l
     path.write_text(lines)
     rc, _, err = run(["info", path], capsys)
     assert rc == 1 and says in one_line_error(err)
+
+
+def test_eval_roc_without_matplotlib_is_one_error_before_the_work(tmp_path, capsys, monkeypatch):
+    """`eval --roc x.png` without matplotlib ran the whole evaluation (minutes on real recordings), then said
+    "no ROC plot" and exited 0: the file the user named was never written."""
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # what `import matplotlib` meets where it is not installed
+    rc, out, err = run(["eval", SHIPPED, "--methods", "stcf", "--ratios", "0.5", "--seeds", "1",
+                        "--roc", tmp_path / "roc.png"], capsys)
+    assert rc == 1 and out == ""  # no table: refused before the evaluation
+    assert one_line_error(err) == (f"evstream: error: --roc {tmp_path / 'roc.png'}: the ROC plot needs matplotlib, "
+                                   "which is not installed (pip install matplotlib; or leave out --roc)")
+    assert not any(tmp_path.iterdir())

@@ -51,6 +51,8 @@ def cmd_eval(args) -> int:
     check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
     if args.real and not Path(args.real).is_dir():  # was Python's "[Errno 20] Not a directory: 'X'"
         raise UsageError(f"--real {args.real}: {'not a folder' if Path(args.real).exists() else 'no such folder'}")
+    if args.roc:  # before minutes of work: it was "no ROC plot" at the end, exit 0
+        evaluation.check_can_plot(f"--roc {args.roc}")
     inputs = batch.files_named([*args.recordings, *([args.real] if args.real else [])])
     for flag, out in (("--json", args.json), ("--roc", args.roc)):  # before minutes of work, not after
         if out:
@@ -108,13 +110,10 @@ def cmd_eval(args) -> int:
         write_json_rows(args.json, rows)
         print(f"wrote {args.json} ({len(rows)} rows)")
     if args.roc:
-        try:
-            names = [c.name for c in conditions]
-            condition = args.roc_condition or ("100%" if "100%" in names else names[0])
-            evaluation.plot_roc(curves, condition, args.roc)
-            print(f"wrote {args.roc}")
-        except ImportError:
-            print("evstream eval: no ROC plot: matplotlib is not installed (pip install matplotlib)", file=sys.stderr)
+        names = [c.name for c in conditions]
+        condition = args.roc_condition or ("100%" if "100%" in names else names[0])
+        evaluation.plot_roc(curves, condition, args.roc)
+        print(f"wrote {args.roc}")
     return 0
 
 
