@@ -316,6 +316,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "save_representation: another spelling of the temporary name ('XX.partXX', '.PART'): the file is renamed "
     "to its own name once whole, and no reader looks for the temporary one": [
         f"evstream.framing.arrays.x_save_representation__mutmut_{n}" for n in (6, 7)],
+    "_table's anchors without a dtype (ints): np.interp returns float64 whatever the anchors' dtype, so the "
+    "same table": ["evstream.framing.render.x__table__mutmut_3"],
     # framing's window framers (session 11)
     "FixedCount's last time None for 0 between frames: fn_run and fn_scan set it with a frame's first event, "
     "and it is read (a full frame's end, finish) only while the frame holds events (by hand, compiled: the "
@@ -335,6 +337,15 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "adaptive's jump past empty frames not taken when the frame ends exactly on the watermark w: the frame "
     "stays current, holds no event (none comes before w), and the next advance to w or later steps it onto "
     "the same grid (its overlap has settled)": ["evstream.framing.overlap.xǁAdaptiveOverlapǁ_skip_empty__mutmut_14"],
+    "voxel grids zeroed lazily: zeroing one bin further ahead ((lo + 3)·hw for (lo + 2)·hw) zeroes a bin no "
+    "event has reached yet (events come in time order, so bins only move up), before any write to it": [
+        "evstream.framing.represent.x_voxel_count_kernel__mutmut_42",
+        "evstream.framing.represent.x__zero_for__mutmut_10"],
+    "the representations' event buffer's times as float64 (np.zeros' default, at first or once grown): every "
+    "time below 2^53 µs is exact, and each use (searchsorted, t − t_start scaled to a bin, a timestamp's "
+    "fraction of its window) computes the same values": [
+        "evstream.framing.represent.xǁ_EventBufferǁ__init____mutmut_3",
+        "evstream.framing.represent.xǁ_EventBufferǁappend__mutmut_33"],
     "NOT equivalent, but no test can tell: the flat index as uint32 for a sensor of 2^31 pixels or more (2 / hw "
     "or 3**32 for 2 * hw < 2**32) wraps there, and such a sensor's count image is 8 GiB; every sensor a test "
     "can hold gets uint32 either way": [

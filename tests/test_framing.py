@@ -504,6 +504,21 @@ def test_fn_windows_after_a_quiet_stretch_are_the_same_with_a_follower():
     assert any(f.t_start > 10_000_000 for f in plain) and all(f.n_events for f in plain)
 
 
+def test_empty_frames_hold_counts_of_the_frames_dtype_and_a_run_counts_them():
+    """An empty frame's counts are the sensor's zeros in COUNT_DTYPE, as a full frame's; FrameStats, as a
+    run's sink, counts every frame of each batch and takes the run's duration."""
+    from evstream.framing.base import COUNT_DTYPE
+    from evstream.framing.stats import FrameStats
+
+    s = EventChunk.from_arrays([0, 5, 3_000, 3_001], [1, 2, 3, 4], [1, 2, 3, 4], [1, 0, 1, 1], G)
+    frames = frames_of(FixedWindow(window_us=1000), [s])
+    assert [f.n_events for f in frames] == [2, 0, 0, 2]
+    assert all(f.counts.dtype == COUNT_DTYPE and f.counts.shape == (2, G.height, G.width) for f in frames)
+    stats = FrameStats()
+    run = Pipeline([], FixedWindow(window_us=1000)).run([s[:2], s[2:]], [stats])
+    assert (stats.frames, stats.empty_frames, stats.duration_us) == (4, 2, run.duration_us)
+
+
 def test_fn_an_event_on_the_deadline_starts_the_next_frame():
     """An FN frame spans [first, first + max_window_us): an event exactly at the deadline closes it and
     opens the next one, in one chunk and one event at a time (the watermark then sits on the deadline)."""

@@ -66,3 +66,17 @@ def test_a_flag_no_chosen_framer_has_is_named():
         framers_from_args(p.parse_args(["--window-us", "5"]))
     with pytest.raises(ValueError, match=r"^--tau-us, --bins does not apply to --framer fw$"):
         framers_from_args(p.parse_args(["--framer", "fw", "--bins", "3", "--tau-us", "9"]))
+
+
+def test_the_flags_helps_read_whole():
+    helps = {a.dest: a.help for a in _parser()._actions}
+    assert helps["framer"] == ("framer: fixed window, fixed count, overlapping accumulation, the paper's adaptive "
+                               "overlap, or a representation over one of those (--window); default none")
+    assert helps["all_events"] == "build frames from every event, not only those classed SIGNAL"
+
+
+def test_a_command_without_the_framer_flags_has_no_framer():
+    """A command whose parser has no framer flags (its namespace lacks them) builds no framer."""
+    args = argparse.Namespace()
+    assert framer_kinds(args) == [] and framers_from_args(args) == []
+    assert [f.params() for f in framers_from_args(argparse.Namespace(framer="fw"))] == [FixedWindow().params()]

@@ -89,3 +89,37 @@ def test_png_writer_makes_its_folders_and_uses_its_style_and_scale(tmp_path):
     assert (tmp_path / "c" / "frame_000000.png").read_bytes() == png_bytes(paper(FRAME))
     with pytest.raises(ValueError, match=r"^unknown frame style 'x'; choose from paper, signed, coolwarm"):
         PngWriter(tmp_path / "d", style="x")
+
+
+def test_count_and_voxel_pictures_use_one_robust_scale():
+    """A count image's pixels past the 99th percentile are at the top of `hot` (clipped at 1, not
+    wrapped round a uint8); a voxel grid's bins share one scale, so a bin ten times weaker is dimmer."""
+    total = np.array([[1.0] * 99 + [1000.0]], np.float32)
+    count = render_representation(_rep("count", total[None]))
+    s = robust_scale(total)
+    np.testing.assert_array_equal(count, COLOUR_MAPS["hot"][(255 * np.clip(total / s, 0, 1)).round().astype(np.uint8)])
+    assert (count[0, -1] == COLOUR_MAPS["hot"][255]).all()
+    bins = np.array([[[10.0, -10.0]], [[1.0, -1.0]]], np.float32)
+    vox = render_representation(_rep("voxel", bins))
+    shared = robust_scale(bins)
+    want = mosaic([[COLOUR_MAPS["coolwarm"][signed(b, shared)] for b in bins]], background=0)
+    np.testing.assert_array_equal(vox, want)
+    assert not np.array_equal(vox[0, :2], vox[0, -2:])  # the weak bin is not drawn as bright as the strong one
+
+
+def test_robust_scale_is_at_least_one_and_below_two_when_the_values_are():
+    assert robust_scale(np.array([1.5, 1.5, 0.0])) == 1.5
+    assert robust_scale(np.array([0.25, -0.5])) == 1.0 and robust_scale(np.zeros(3)) == 1.0
+
+
+def test_png_header_level_and_message():
+    """The IHDR is width, height, 8 bits, the colour type and three zero bytes (deflate, filter 0, no
+    interlace: a reader refuses other values); `level` is zlib's level; an empty image is refused."""
+    img = np.zeros((3, 5), np.uint8)
+    data = png_bytes(img)
+    assert data[8:33] == b"\x00\x00\x00\x0dIHDR" + b"\x00\x00\x00\x05\x00\x00\x00\x03" + b"\x08\x00\x00\x00\x00" \
+        + data[29:33]
+    big = np.zeros((64, 64), np.uint8)
+    assert len(png_bytes(big, level=0)) > len(png_bytes(big, level=9))
+    with pytest.raises(ValueError, match=r"^PNG needs at least one pixel$"):
+        png_bytes(np.zeros((0, 4), np.uint8))

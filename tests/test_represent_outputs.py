@@ -35,6 +35,15 @@ def test_npz_files_hold_the_arrays_and_window_times(tmp_path):
     assert not list((tmp_path / "out" / "vox").glob("*.part"))
 
 
+def test_npz_output_into_a_folder_that_exists(tmp_path):
+    """A second run into the same folder (or one made by hand) writes there: an existing folder is no error."""
+    (tmp_path / "vox").mkdir()
+    writer = ArrayWriter(tmp_path / "vox")
+    Pipeline([], build("framer", {"kind": "voxel", "bins": 2, "window_us": 20_000})).run([random_stream(1, 500, G)],
+                                                                                      [writer])
+    assert writer.written and len(list((tmp_path / "vox").glob("*.npz"))) == writer.written
+
+
 def test_npz_output_refuses_plain_frames(tmp_path):
     pipe = Pipeline([], build("framer", {"kind": "fw", "window_us": 5000}))
     with pytest.raises(ValueError, match="takes a representation framer"):
