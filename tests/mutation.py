@@ -341,6 +341,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "event has reached yet (events come in time order, so bins only move up), before any write to it": [
         "evstream.framing.represent.x_voxel_count_kernel__mutmut_42",
         "evstream.framing.represent.x__zero_for__mutmut_10"],
+    "np.searchsorted's side is 'left' by default":
+        ["evstream.framing.represent.xǁ_EventBufferǁindex_of_time__mutmut_10"],
     "the representations' event buffer's times as float64 (np.zeros' default, at first or once grown): every "
     "time below 2^53 µs is exact, and each use (searchsorted, t − t_start scaled to a bin, a timestamp's "
     "fraction of its window) computes the same values": [

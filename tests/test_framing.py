@@ -271,6 +271,7 @@ def test_many_empty_frames_are_bounded_and_the_grid_is_kept():
     *(({"kind": "adaptive", "k_us_per_event": k}, f"^adaptive: k_us_per_event must be a finite number >= 0, got {s}$")
       for k, s in ((float("inf"), "inf"), (float("nan"), "nan"), (True, "True"), ("2", "'2'"), (-0.5, "-0.5"))),
     ({"kind": "adaptive", "overlap_init_us": 6000}, "overlap_init_us"),
+    ({"kind": "timesurface", "tau_us": True}, r"^timesurface: tau_us must be a number in \(0, 2\^40\] µs, got True$"),
     ({"kind": "fw", "all_events": "yes"}, "^fw: all_events must be true or false, got 'yes'$"),
     ({"kind": "fw", "stride_us": 3}, "unknown parameter .stride_us.; its parameters: window_us"),
 ])

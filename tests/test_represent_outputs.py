@@ -44,6 +44,11 @@ def test_npz_output_into_a_folder_that_exists(tmp_path):
     assert writer.written and len(list((tmp_path / "vox").glob("*.npz"))) == writer.written
 
 
+def test_a_count_image_has_one_channel_named_events():
+    frames = frames_of(build("framer", {"kind": "count", "window_us": 5000}), [random_stream(1, 500, G)])
+    assert frames and all(f.channels == ("events",) and f.data.shape[0] == 1 for f in frames)
+
+
 def test_npz_output_refuses_plain_frames(tmp_path):
     pipe = Pipeline([], build("framer", {"kind": "fw", "window_us": 5000}))
     with pytest.raises(ValueError, match="takes a representation framer"):
