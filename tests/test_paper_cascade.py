@@ -272,6 +272,20 @@ def test_dc_with_255_bins_counts_a_pixel_active_in_every_bin():
     assert score[254] == 1.0 and score[599] == 1.0
 
 
+@pytest.mark.parametrize("n_bins, sums", [(85, np.uint8), (86, np.uint16)])
+def test_dc_row_sums_hold_three_pixels_active_in_every_bin(n_bins, sums):
+    """Row sums of one byte while 3 · n <= 255: three neighbours active in every bin take a row sum to 3 · n
+    (255 at n = 85, exact in a byte; 258 at n = 86, in two), and the middle row's pixel sees them all."""
+    g = Geometry(5, 3)
+    t = np.repeat(np.arange(300), 4)
+    x, y = np.tile([1, 2, 3, 2], 300), np.tile([1, 1, 1, 0], 300)  # a full row of three, and one above it
+    ev = EventChunk.from_arrays(t, x, y, np.ones(len(t)), g)
+    f = TimeSeriesFilter(rate_hz=1e6, n_bins=n_bins, lam=0.0)
+    _, score = f.classify_scored(ev)
+    assert f._state["rowsum"].dtype == sums and f._state["rowsum"].max() == 3 * n_bins
+    assert np.allclose(score, dc_reference(ev, TimeSeriesFilter(rate_hz=1e6, n_bins=n_bins, lam=0.0))[1])
+
+
 @pytest.mark.parametrize("make", [
     lambda: DensityFilter(window_us=500), lambda: DensityFilter(mode="absolute", window_us=2000),
     lambda: DensityFilter(match_polarity=True, clip_border=True, window_us=300),

