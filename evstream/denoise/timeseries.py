@@ -12,8 +12,8 @@ kept — including the events it classes HOT_PIXEL (a hot pixel must stay hot).
 Exact and streaming: each pixel's count of active bins among the last n (a pixel's first event in a
 bin activates it; a FIFO expires the activation when its bin leaves the window), held in a row-summed
 map (`rowsum`) so that the neighbours' total is L reads. 3 bytes per pixel (4 when L·n > 255: the row
-sums' type) plus 4 per activation in the window. (A uint64 bitmask per pixel with popcounts of the neighbours, the obvious layout, is 16
-bytes per pixel and measured 1.2–1.4× slower in the cascade.)
+sums' type) plus 4 per activation in the window. (A uint64 bitmask per pixel with popcounts of the
+neighbours, the obvious layout, is 16 bytes per pixel and measured 1.2–1.4× slower in the cascade.)
 
 Limits: it needs about n/fs of history before a hot pixel's DC is fully built; and a hot pixel firing
 at rate f sets a fraction 1 - exp(-f/fs) of the bins, so pixels slower than about λ·fs are missed
@@ -268,7 +268,7 @@ class TimeSeriesFilter(InPlaceClassifier):
     def _bind(self) -> None:
         """The kernel's arguments after the codes: state arrays, then parameters as the kernel's types."""
         s, g, r = self._state, self._state["geometry"], self.radius_px
-        far = s["pixel"].nbytes + s["rowsum"].nbytes > FAR_BYTES
+        far = 2 * s["pixel"].nbytes > FAR_BYTES  # as with two-byte row sums (640×480 up; the ahead-of-time build)
         self._options = (r, DIFFERENCE if self.form == "difference" else RATIO, far)
         self._args = (int(self.noise_class), s["live"], s["pixel"], s["rowsum"], g.width + 2 * r, s["fifo_pos"],
                       s["per_bin"], s["fifo_state"], self.bin_us, self.n_bins, float(self.lam), self._above(),
