@@ -759,7 +759,7 @@ def guard(worker: subprocess.Popen, running: Path, poll_s: float = 0.5, cpu_s: f
         key = (now.get("mutant"), now.get("test"))
         if key != seen:
             seen, cpu0, wall0 = key, cpu, time.monotonic()
-        if now.get("mutant"):
+        if now.get("mutant") and now.get("pid", worker.pid) == worker.pid:
             limit = now.get("limit_s", 20.0)
             why = ("memory" if rss > now.get("rss_mb", float("inf")) else
                    "timeout" if cpu - cpu0 > limit + cpu_s or time.monotonic() - wall0 > wall * limit else None)
@@ -798,12 +798,14 @@ def inproc(name: str, only: list[str] = (), again: bool = False, sample: int = 0
                HYPOTHESIS_PROFILE=os.environ.get("HYPOTHESIS_PROFILE", "mutation"))
     env.pop("NUMBA_DISABLE_JIT", None)
     shutil.rmtree(ws / ".numba_cache_inproc", ignore_errors=True)
-    (ws / "inproc.running").unlink(missing_ok=True)
     while True:
         todo = [m for m in names if m not in _verdicts(path) or m in _redo(ws)]
         if not todo:
             break
         (ws / "inproc.todo").write_text("\n".join(todo))
+        # what the last worker ran is not the new one's: read against it, the new worker's clean run would
+        # count as that mutant's test and be stopped, again and again
+        (ws / "inproc.running").unlink(missing_ok=True)
         worker = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker", name],
                                   cwd=ws / "mutants", env=env)
         stopped = guard(worker, ws / "inproc.running")
@@ -855,7 +857,7 @@ def worker(name: str) -> int:
         return r.ru_utime + r.ru_stime
 
     def running(**now) -> None:  # for the parent's guard: what runs now, its limits (atomic: it reads it any time)
-        (ws / "inproc.running.tmp").write_text(json.dumps(now))
+        (ws / "inproc.running.tmp").write_text(json.dumps(dict(now, pid=os.getpid()) if now else now))
         os.replace(ws / "inproc.running.tmp", ws / "inproc.running")
 
     class Record:

@@ -95,6 +95,19 @@ def test_the_guard_gives_each_test_its_own_limit_and_lets_the_worker_end(tmp_pat
     assert worker.returncode == 0
 
 
+def test_the_guard_ignores_what_another_worker_ran(tmp_path):
+    """A restarted worker's clean run is no mutant's test: the running file the killed worker left (its
+    pid) must not stop it. Seen: a framing_represent run stopped each restarted worker's clean run as
+    the last mutant's, 13 times, until stopped by hand."""
+    worker, running = _worker(tmp_path, """
+        import time
+        t0 = time.process_time()
+        while time.process_time() - t0 < 1.0:
+            pass
+    """, mutant="m__mutmut_5", test=None, limit_s=0.1, rss_mb=1e6, pid=1)
+    assert mutation.guard(worker, running, poll_s=0.02, cpu_s=0.1, wall=1e6) is None and worker.returncode == 0
+
+
 def test_a_change_of_sources_keeps_the_verdicts_of_the_functions_it_leaves_alone():
     """mutmut names a mutant by its function and a number; a verdict holds while that function reads the
     same, and for a method while its class does (fields, defaults, decorators) but for its other methods."""
