@@ -80,6 +80,13 @@ TARGETS = {
                                                  "oracle.py", "refractory.py", "stcf.py", "ynoise.py")],
                           ["tests/test_baselines.py", "tests/test_metrics.py", "tests/test_pipeline.py",
                            "tests/test_paper_cascade.py", "tests/test_baf_stage.py"]),
+    # the learned denoiser (the shipped model's stage): its features' kernel as plain Python, the vector
+    # neighbour pass (an intrinsic) by its plain twin `reference_nb8`; less the one test that trains in a child
+    # process (`evstream train` piped: the plain kernel there takes minutes, out of reach of the CPU limit)
+    "denoise_learned": ([DENOISE + "learned/" + f for f in ("features.py", "model.py", "neighbours.py", "stage.py",
+                                                            "train.py")],
+                        ["tests/test_learned.py", "--deselect",
+                         "tests/test_learned.py::test_train_says_where_it_is_when_its_output_is_piped"]),
     # the two per-pixel baselines alone (the others stay compiled: their tests share test_baselines.py)
     "denoise_per_pixel": ([DENOISE + "hotpixel.py", DENOISE + "refractory.py"],
                           ["tests/test_baselines.py", "tests/test_paper_cascade.py"]),
@@ -353,7 +360,29 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "can hold gets uint32 either way": [
         f"evstream.framing.overlap.xǁSlidingFramerǁ_first__mutmut_{n}" for n in (8, 12)],
     "EVT2 encoder: `cur > 0` for `cur >= 0` (session 6): frm is only used as frm >> 28, and cur = 0 gives "
-    "0 on either side": ["evstream.codecs.evt2.x__encode_kernel__mutmut_13"],
+    "0 on either side; `cur >= 1` likewise": [
+        f"evstream.codecs.evt2.x__encode_kernel__mutmut_{n}" for n in (13, 14)],
+    # session 11 (codecs, whole): each by reading the code
+    "EVT2 decoder: has_high = 2 for 1 (only ever tested for truth, in both EVT2 kernels)": [
+        "evstream.codecs.evt2.x__decode_kernel__mutmut_64"],
+    "EventPacket CDR layout: the padding after is_bigendian depends on the offset mod 4, and the offset before "
+    "that field group is a multiple of 4 (pad1 aligned it, + 8 keeps it): leaving it out, or -20 for +20 (40 "
+    "apart), gives the same padding": [f"evstream.codecs.event_packet.x__layout__mutmut_{n}" for n in (34, 38)],
+    "Evt3Encoder: -2 for -1 as 'no row yet' (the row is compared with y >= 0 only); a first scratch of "
+    "float64 or of 1 word, or a reallocation at 5n + ramp words instead of 4n + ramp (to the same 4n + ramp): "
+    "every call needs 4n + ramp >= 11 words, so the first scratch is always replaced, and a larger test only "
+    "reallocates the same size more often (a cost, not a result)": [
+        *(f"evstream.codecs.evt3.xǁEvt3Encoderǁ__init____mutmut_{n}" for n in (11, 20, 21)),
+        "evstream.codecs.evt3.xǁEvt3Encoderǁencode__mutmut_67"],
+    "EVT3 encoder kernel: cur_low = None for -1 after a TIME_HIGH (both differ from every time low 0..4095, "
+    "so the TIME_LOW word follows and replaces it); t[i+2] == ti for t[i+1] == ti in the vector test: times "
+    "are checked non-decreasing first, so t[i+2] == t[i] holds only with t[i+1] == t[i]": [
+        f"evstream.codecs.evt3.x__encode_kernel__mutmut_{n}" for n in (58, 113)],
+    "EVT3 packets kernel: the encoder's started flag 2 for 1 (tested != 0); `h >> 12` for `h << 12` as the "
+    "check's previous time: both are <= t0 (the kernel returned already when h > t0 >> 12, and h >= 0), "
+    "and only the first event is compared with it; n <= 0 / n < 1 for n < 0: a packet writes at least a "
+    "TIME_LOW and an event word (n >= 2), a packet without events having returned before": [
+        f"evstream.codecs.evt3.x__encode_packets_kernel__mutmut_{n}" for n in (78, 104, 106, 107)],
     "EVT3 skip kernel: (loops << 25) for (loops << 24) in the test of the period carried over from the "
     "block before only makes it hold more often (never less); stop = 0 then has `_follow` read the block "
     "word by word, which finds the same first word at or after start_us": [
@@ -423,7 +452,7 @@ def kept_compiled(sources: dict[str, str], mutated: set[str]) -> set[str]:
     `column_sum`). Names are matched without their module: a clash keeps more compiled, never less."""
     trees = {path: ast.parse(src) for path, src in sources.items()}
     functions = [(path, f) for path, tree in trees.items() for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)]
-    intrinsics = {f.name for _, f in functions if _is_intrinsic(f)}
+    intrinsics = {f.name for _, f in functions if _is_intrinsic(f)} - set(PLAIN_TWINS)
     kernels = {(path, f.name): {_called(c) for c in ast.walk(f) if isinstance(c, ast.Call)}
                for path, f in functions if any(_is_njit(d) for d in f.decorator_list)}
     compiled = {k for k, calls in kernels.items() if k[0] not in mutated or calls & intrinsics}
@@ -432,13 +461,22 @@ def kept_compiled(sources: dict[str, str], mutated: set[str]) -> set[str]:
     return {name for path, name in compiled if path in mutated}
 
 
+# numba intrinsics with a plain-Python twin (the definition their tests compare them with), as the lines
+# that bind the twin to the intrinsic's name: a kernel calling one is not kept compiled for it but runs as
+# plain Python calling the twin, so that it is mutated like any kernel (the learned features' kernel). The
+# twin takes Python ints (a NumPy int64 shift count would overflow its 64-bit bitmaps).
+PLAIN_TWINS = {"nb8_support": "from .neighbours import reference_nb8 as _nb8_twin\n"
+                              "nb8_support = lambda word, bins, *scalars: _nb8_twin(word, bins, *map(int, scalars))\n"}
+
+
 def plain_kernels(source: str, keep: set[str] = frozenset()) -> str:
     """`source` with its numba kernels as plain Python: `@njit` lines removed (kept on functions calling
     an `@intrinsic`: numba-only, and on those named in `keep`), and every `functools.cache` / `lru_cache`
-    (see the module's doc)."""
+    (see the module's doc); a plain kernel calling an intrinsic of PLAIN_TWINS calls its twin."""
     tree = ast.parse(source)
     intrinsics = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and _is_intrinsic(f)}
     drop: set[int] = set()
+    twins: set[str] = set()
     for f in ast.walk(tree):
         if not isinstance(f, ast.FunctionDef):
             continue
@@ -446,8 +484,10 @@ def plain_kernels(source: str, keep: set[str] = frozenset()) -> str:
         for dec in f.decorator_list:
             if (_is_njit(dec) and not calls & intrinsics and f.name not in keep) or _is_cache(dec):
                 drop.update(range(dec.lineno - 1, dec.end_lineno))  # the `@` is on dec.lineno
+                twins |= calls & set(PLAIN_TWINS) if _is_njit(dec) else set()
     lines = source.splitlines(keepends=True)
-    return "".join(line for i, line in enumerate(lines) if i not in drop)
+    return "".join(line for i, line in enumerate(lines) if i not in drop) + "".join(
+        "# tests/mutation.py: the intrinsic's plain twin\n" + PLAIN_TWINS[name] for name in sorted(twins))
 
 
 def package_sources() -> dict[str, str]:
