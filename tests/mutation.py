@@ -402,6 +402,14 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "it at 2 is at 1; write_png's sync=False only spares an fsync (the same bytes)": [
         "evstream.framing.render.x_coloured__mutmut_33", "evstream.framing.render.x_render_representation__mutmut_20",
         "evstream.framing.render.x_write_png__mutmut_4"],
+    # session 12: denoise_cascade
+
+    # session 12: denoise_baselines, denoise_learned
+
+    # session 12: codecs, codecs_payloads
+
+    # session 12: framing, framing_windows, framing_represent, testing, sources_base
+
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 
