@@ -233,3 +233,40 @@ def test_skip_before_matches_reference(words, start_us, n_blocks):
     while blocks and left is None:
         left = dec.skip_before(blocks.pop(0), start_us)
     assert (left or b"") + b"".join(blocks) == (b"" if i == len(words) else data[4 * i:])
+
+
+def reference_encode(t, x, y, p, high=-1):
+    """Plain-Python EVT2 encoder (the kernel's reference), from time-high `high` (-1: none written yet):
+    (its words, the last time-high written). A TIME_HIGH (t >> 6, 28 bits) before each event whose differs
+    from the last written, each 28-bit wrap on the way (from 0 at the start) spelled as the top and then 0;
+    then the event's CD word (polarity, t's 6 low bits, x, y)."""
+    words = []
+    for ti, xi, yi, pi in zip(*(map(int, a) for a in (t, x, y, p))):
+        if ti >> 6 != high:
+            period = max(high, 0) >> 28
+            words += [H | 0xFFFFFFF, H] * ((ti >> 34) - period)
+            high = ti >> 6
+            words.append(H | high & 0xFFFFFFF)
+        words.append(pi << 28 | (ti & 63) << 22 | xi << 11 | yi)
+    return words, high
+
+
+_STEPS = st.lists(st.sampled_from([0, 0, 1, 63, 64, (1 << 34) - 64, 1 << 34, 3 << 34]), max_size=40)
+_FIRST = st.sampled_from([0, 63, 64, (1 << 34) - 1, 1 << 34, (3 << 34) + 5]) | st.integers(0, 1 << 36)
+
+
+@given(st.one_of(event_streams(), st.builds(lambda t0, g: _at(*(t0 + np.cumsum([0, *g]))), _FIRST, _STEPS)),
+       st.lists(st.integers(0, 200), max_size=4))
+@example(_at(0, 0, 64, (1 << 34) - 1, 1 << 34, 4 << 34), [3])
+@example(_at((1 << 34) + 5, (3 << 34) + 64), [])  # the first event past a wrap: wraps from 0
+def test_encoder_matches_its_reference_word_by_word(ev, cuts):
+    """The encoder kernel (through `Evt2Encoder`, which carries the last time-high over calls) against
+    `reference_encode`, cut into calls anywhere: the same words, and the same time-high left."""
+    t, x, y, p = ev
+    n = len(t)
+    edges = [0, *sorted(c for c in cuts if c <= n), n]
+    enc, high = evt2.Evt2Encoder(), -1
+    for a, b in zip(edges[:-1], edges[1:]):
+        want, high = reference_encode(t[a:b], x[a:b], y[a:b], p[a:b], high)
+        assert np.frombuffer(enc.encode(t[a:b], x[a:b], y[a:b], p[a:b]), "<u4").tolist() == want
+        assert enc.state.tolist() == [high]

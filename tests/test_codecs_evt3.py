@@ -4,7 +4,7 @@ encode -> decode round trips, faery agreement, and the real Gen4.1 recording."""
 import numpy as np
 import pytest
 from codec_checks import assert_events_equal, check_kernel_agrees_with_reference, checked_events, with_boundary_examples
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from evstream.codecs import evt3
@@ -511,3 +511,112 @@ def test_packets_kernel_stops_at_a_packet_without_events():
         assert evt3._encode_packets_kernel(t, x, y, p, np.array(bounds, np.int64), np.int64(-1), out, ends) == done
         with pytest.raises(ValueError, match="^a packet needs at least one event$"):
             PacketEncoder(width=64, height=48).encode_many(t, x, y, p, bounds)
+
+
+# -- the encoder word by word ----------------------------------------------------------------------
+def reference_time_highs(frm: int, to: int) -> list[int]:
+    """The TIME_HIGH words from absolute time-high `frm` to `to`: within a period (4096 time-highs) steps of
+    at most 2047 up; a wrap spelled 4095 then 0 (4095 again where the clock stands on it); the target last
+    (again where a wrap's 0 is the target)."""
+    highs, cur = [], frm
+    while cur >> 12 < to >> 12:
+        top = cur | 0xFFF
+        while top - cur > 2047:
+            cur += 2047
+            highs.append(cur)
+        highs += [top, top + 1]
+        cur = top + 1
+    while to - cur > 2047:
+        cur += 2047
+        highs.append(cur)
+    return [0x8000 | (h & 0xFFF) for h in highs + [to]]
+
+
+def reference_encode(t, x, y, p, state=(False, 0, -1, -1)):
+    """Plain-Python EVT3 encoder (the kernel's reference), from `state` (started, time-high, time-low, row):
+    (its words, the state after). A new time-high is reached by `reference_time_highs` (from 0 at the
+    start) and forgets the time low; a TIME_LOW or ADDR_Y only when it changes; the events of a run (same
+    t, y and p, x strictly increasing) from event i go into VECT_BASE_X and VECT_12 words when its first
+    three are within 12 pixels, 12 pixels a word, for as long as the run reaches the next word's 12;
+    any other event is one ADDR_X."""
+    t, x, y, p = (list(map(int, a)) for a in (t, x, y, p))
+    started, high, low, row = state
+    words, i, n = [], 0, len(t)
+    while i < n:
+        if not started or t[i] >> 12 != high:
+            words += reference_time_highs(high if started else 0, t[i] >> 12)
+            started, high, low = True, t[i] >> 12, -1
+        if t[i] & 0xFFF != low:
+            low = t[i] & 0xFFF
+            words.append(0x6000 | low)
+        if y[i] != row:
+            row = y[i]
+            words.append(row)
+        end = i + 1  # the run from i
+        while end < n and (t[end], y[end], p[end]) == (t[i], y[i], p[i]) and x[end] > x[end - 1]:
+            end += 1
+        if end - i >= 3 and x[i + 2] < x[i] + 12:
+            words.append(0x3000 | p[i] << 11 | x[i])
+            base = x[i]
+            while i < end and x[i] < base + 12:
+                mask = 0
+                while i < end and x[i] < base + 12:
+                    mask |= 1 << (x[i] - base)
+                    i += 1
+                words.append(0x4000 | mask)
+                base += 12
+        else:
+            words.append(0x2000 | p[i] << 11 | x[i])
+            i += 1
+    return words, (started, high, low, row)
+
+
+@st.composite
+def dense_streams(draw):
+    """Streams made of runs (same t, y and p, x stepping up by 1..13: inside one vector word, onto the next
+    word's first pixel, across two, just past one), the time stepping between runs by 0, a TIME_LOW, a
+    TIME_HIGH, the largest step and wraps; few rows, so runs often continue one another."""
+    runs = draw(st.lists(st.tuples(
+        st.sampled_from([0, 0, 0, 1, 4095, 4096, 2047 * 4096, 2048 * 4096, WRAP - 1, WRAP, 3 * WRAP + 5]),
+        st.sampled_from([0, 3, 3, 2047]), st.sampled_from([0, 1, 1]), st.integers(0, 2047),
+        st.lists(st.sampled_from([1, 1, 1, 2, 9, 10, 11, 12, 13]), max_size=8)), max_size=12))
+    t = draw(st.sampled_from([0, 4095, 4095 * 4096 + 7, WRAP - 1]) | st.integers(0, 3 * WRAP))
+    events = []
+    for gap, y, p, x0, steps in runs:
+        t += gap
+        events += [(t, x, y, p) for x in np.cumsum([x0, *steps]).tolist() if x < 2048]
+    a = np.array(events, np.int64).reshape(-1, 4)
+    return a[:, 0], a[:, 1].astype(np.uint16), a[:, 2].astype(np.uint16), a[:, 3].astype(np.uint8)
+
+
+@pytest.mark.parametrize("frm, to", [
+    (0, 0), (5, 5), (0, 2047), (0, 2048), (4095, 4095), (4095, 4096), (4095, 4097), (4094, 4096), (0, 4096),
+    (2048, 4096 + 2047), (2048, 4096 + 2048), (0, 3 * 4096 + 5), (1, 8191),
+])
+def test_time_high_steps_match_their_reference(frm, to):
+    """`_advance_time_high` word by word: at and past the largest step, from and onto the top of a period,
+    across one and several wraps."""
+    out = np.zeros(64, np.uint16)
+    k = evt3._advance_time_high(out, np.int64(3), np.int64(frm), np.int64(to))
+    want = reference_time_highs(frm, to)
+    assert out[3:k].tolist() == want and k == 3 + len(want) and not out[:3].any() and not out[k:].any()
+
+
+@given(st.one_of(dense_streams(), event_streams()), st.lists(st.integers(0, 300), max_size=4))
+@example((np.array([4095 * 4096 + 9, *[WRAP] * 5]), np.array([5, 0, 1, 2, 12, 36], np.uint16), np.full(6, 5, np.uint16),
+          np.ones(6, np.uint8)), [])
+@example((np.array([4095 * 4096 + 9, *[WRAP] * 5]), np.array([5, 0, 1, 2, 12, 36], np.uint16), np.full(6, 5, np.uint16),
+          np.ones(6, np.uint8)), [3])
+def test_encoder_matches_its_reference_word_by_word(ev, cuts):
+    """The encoder kernel (through `Evt3Encoder`, whose state carries over calls) against `reference_encode`,
+    on streams crowded with runs and random ones, cut into calls anywhere (a run cut by a call is two runs).
+    The examples: from the top of a period onto the next one's 0, then a run at x 0, 1, 2 (a vector), 12 (the
+    first pixel of its second word), 36 (past that word: an ADDR_X); then the same cut after 0 and 1."""
+    t, x, y, p = ev
+    n = len(t)
+    edges = [0, *sorted(c for c in cuts if c <= n), n]
+    enc, state = evt3.Evt3Encoder(), (False, 0, -1, -1)
+    for a, b in zip(edges[:-1], edges[1:]):
+        want, state = reference_encode(t[a:b], x[a:b], y[a:b], p[a:b], state)
+        assert np.frombuffer(enc.encode(t[a:b], x[a:b], y[a:b], p[a:b]), "<u2").tolist() == want
+        assert (bool(enc.state[0]), *enc.state[1:].tolist()) == state
