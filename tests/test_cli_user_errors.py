@@ -630,3 +630,24 @@ def test_eval_roc_without_matplotlib_is_one_error_before_the_work(tmp_path, caps
     assert one_line_error(err) == (f"evstream: error: --roc {tmp_path / 'roc.png'}: the ROC plot needs matplotlib, "
                                    "which is not installed (pip install matplotlib; or leave out --roc)")
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("framer, says", [("voxel", "wrote 1 array (.npz) to"), ("fw", "wrote 1 PNG frame to")])
+def test_a_count_of_one_is_said_in_the_singular(tmp_path, capsys, framer, says):
+    """'wrote 1 arrays (.npz)' (found by the user audit): one window, one file, said in the singular; and a
+    recording of one event converted and archived says '1 event', '1 event packet'."""
+    rc, out, err = run(["frames", SHIPPED, "--denoise", "none", "--framer", framer, "--window-us", "10000000",
+                        "--out", tmp_path / "o"], capsys)
+    assert rc == 0, err
+    assert says in out
+
+    import evstream
+
+    one = evstream.read(SHIPPED, end_us=1)
+    assert len(one) == 1
+    with evstream.open_sink(tmp_path / "one.npz", geometry=one.geometry) as sink:
+        sink.write(one)
+    rc, out, err = run(["convert", tmp_path / "one.npz", tmp_path / "one.h5"], capsys)
+    assert rc == 0 and out.rstrip().endswith("): 1 event"), (out, err)
+    rc, out, err = run(["archive", tmp_path / "one.npz", tmp_path / "one.mcap", "--denoise", "none"], capsys)
+    assert rc == 0 and out.startswith("1 event in ") and ": 1 event packet, 0 frames" in out, (out, err)

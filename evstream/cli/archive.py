@@ -22,6 +22,7 @@ from .common import (
     add_source_flags,
     attach_framer,
     check_numbers,
+    counted,
     create_folder,
     folder_note,
     not_the_input,
@@ -49,8 +50,8 @@ def cmd_archive(args) -> int:
         print(summary_line(stats))
         if getattr(args, "stored_classes", False):
             print(STORED_CLASSES_NOTE)
-        print(f"wrote {summary['mcap']}{folder_note(created)}: {summary['packets']:,} event packets, "
-              f"{summary['frames_written']:,} frames")
+        print(f"wrote {summary['mcap']}{folder_note(created)}: {counted(summary['packets'], 'event packet')}, "
+              f"{counted(summary['frames_written'], 'frame')}")
     if stop.signum is not None:
         print(f"evstream: interrupted by {signal.Signals(stop.signum).name}; {interrupted_note(args.out, summary)}",
               file=sys.stderr)

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .. import batch
-from .common import Progress, StopOnSignal, UsageError
+from .common import Progress, StopOnSignal, UsageError, counted
 
 # The parsed flags that are not the one-file function's (or are not plain values for the wire).
 NOT_FORWARDED = {"source", "out", "jobs", "scheduler", "force", "command", "func", "debug"}
@@ -187,7 +187,8 @@ def table(results: list[batch.TaskResult]) -> str:
                  f"{sum(r.status == 'skipped' for r in results)} skipped (up to date, same settings; --force "
                  f"redoes them), {sum(r.status == 'failed' for r in results)} failed"
                  + (f", {stopped} interrupted" if stopped else "") + "; "
-                 f"{sum(r.events or 0 for r in done):,} events in {sum(r.seconds for r in done):.2f} task-seconds")
+                 f"{counted(sum(r.events or 0 for r in done), 'event')} in "
+                 f"{sum(r.seconds for r in done):.2f} task-seconds")
     return "\n".join(lines)
 
 

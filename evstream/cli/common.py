@@ -244,6 +244,11 @@ def first_missing(folder) -> str:
     return missing
 
 
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """A count with its noun in agreement: '1 array', '2 arrays', '1 event packet' ('wrote 1 arrays' before)."""
+    return f"{n:,} {noun if n == 1 else plural or noun + 's'}"
+
+
 def folder_note(made: str) -> str:
     return f" (created folder {made}/)" if made else ""
 
@@ -251,7 +256,7 @@ def folder_note(made: str) -> str:
 def summary_line(s: RunStats) -> str:
     pc = s.per_class
     wall = f"{s.wall_s:.2f}" if s.wall_s >= 1 else f"{s.wall_s:.3g}"  # '0.01 s' and '1.2 M ev/s' disagreed
-    return (f"{s.events_in:,} events in {wall} s ({event_rate(s.throughput_hz)}): "
+    return (f"{counted(s.events_in, 'event')} in {wall} s ({event_rate(s.throughput_hz)}): "
             f"signal {pc[0]:,}, background {pc[1]:,}, hot pixel {pc[2]:,}")
 
 

@@ -11,7 +11,16 @@ from .. import api, batch, noise, synth
 from ..events import EventError, Geometry
 from ..safe_write import AtomicOutput
 from .batch import _warm, add_batch_flags, interrupted, run_tasks, table
-from .common import Progress, UsageError, add_quiet_flag, check_numbers, create_folder, folder_note, not_the_input
+from .common import (
+    Progress,
+    UsageError,
+    add_quiet_flag,
+    check_numbers,
+    counted,
+    create_folder,
+    folder_note,
+    not_the_input,
+)
 
 DEFAULT_NOISE_RATIO = 0.5  # what `make recordings` and the README use
 
@@ -40,7 +49,7 @@ def cmd_synth(args) -> int:
     with AtomicOutput(args.out) as part:  # never in place: an interrupted synth leaves the old file
         native.save(part, events, meta)
     counts = events.class_counts("label")
-    print(f"wrote {args.out}{folder_note(created)}: {len(events):,} events ({counts[0]:,} signal, "
+    print(f"wrote {args.out}{folder_note(created)}: {counted(len(events), 'event')} ({counts[0]:,} signal, "
           f"{counts[1]:,} background, {counts[2]:,} hot pixel)")
     return 0
 
@@ -108,7 +117,7 @@ def cmd_eval(args) -> int:
     print(evaluation.markdown(rows, tune=args.tune) if args.markdown else evaluation.report(rows, tune=args.tune))
     if args.json:
         write_json_rows(args.json, rows)
-        print(f"wrote {args.json} ({len(rows)} rows)")
+        print(f"wrote {args.json} ({counted(len(rows), 'row')})")
     if args.roc:
         names = [c.name for c in conditions]
         condition = args.roc_condition or ("100%" if "100%" in names else names[0])
@@ -176,7 +185,7 @@ def _eval_many(args) -> int:
     print(table(results))
     if args.json:
         write_json_rows(args.json, rows)
-        print(f"wrote {args.json} ({len(rows)} rows)")
+        print(f"wrote {args.json} ({counted(len(rows), 'row')})")
     return 1 if any(r.status == "failed" for r in results) else 0
 
 

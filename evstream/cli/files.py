@@ -15,6 +15,7 @@ from .common import (
     UsageError,
     add_quiet_flag,
     add_source_flags,
+    counted,
     create_folder,
     folder_note,
     not_the_input,
@@ -57,7 +58,7 @@ def cmd_convert(args) -> int:
         print(json.dumps(summary))
     else:
         print(f"wrote {summary['out']}{folder_note(summary['created_folder'] or '')} ({summary['format']}, "
-              f"{summary['width']}x{summary['height']}): {summary['events']:,} events")
+              f"{summary['width']}x{summary['height']}): {counted(summary['events'], 'event')}")
     return 0
 
 

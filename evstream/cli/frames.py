@@ -21,6 +21,7 @@ from .common import (
     add_pipeline_flags,
     add_quiet_flag,
     add_source_flags,
+    counted,
     first_missing,
     folder_note,
     open_recording,
@@ -122,8 +123,9 @@ def cmd_frames(args) -> int:
         print(f"{r['framer']['kind']:<10} {r['frames']:>7,} {r['frame_rate_hz']:>11.2f} {r['mean_events']:>12,.2f} "
               f"{r['variance_events']:>16,.2f} {r['empty_frames']:>6,}")
         if r["png_dir"]:
-            what = "arrays (.npz)" if r["files"] == "npz" else "PNG frames"
-            print(f"  wrote {r['png_written']:,} {what} to {r['png_dir']}{folder_note(r['created_folder'])}")
+            n = r["png_written"]
+            what = f"{counted(n, 'array')} (.npz)" if r["files"] == "npz" else counted(n, "PNG frame")
+            print(f"  wrote {what} to {r['png_dir']}{folder_note(r['created_folder'])}")
         for line in r["reports"]:
             print(f"  {line}")
     return 0

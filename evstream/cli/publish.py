@@ -10,7 +10,7 @@ import numpy as np
 
 from ..events import EventChunk, concat
 from ..pipeline import paced
-from .common import StopOnSignal, UsageError, add_source_flags, check_numbers, event_rate, open_recording
+from .common import StopOnSignal, UsageError, add_source_flags, check_numbers, counted, event_rate, open_recording
 from .live import DEFAULT_KEY, add_zenoh_flags, check_endpoints, session_from_args, settle_memory
 
 
@@ -79,13 +79,14 @@ def cmd_publish(args) -> int:
                "wall_s": wall, "cpu_s": cpu_s, "events_per_s": pub.events / wall if wall > 0 else 0.0,
                "stopped_by": signal.Signals(stop.signum).name if stop.signum else None}
     if unmatched_packets:  # a router or the subscribers that went away must not look like a delivery
-        print(f"evstream: warning: {unmatched_packets:,} of {pub.packets:,} packets ({unmatched_events:,} events) "
+        print(f"evstream: warning: {unmatched_packets:,} of {counted(pub.packets, 'packet')} "
+              f"({counted(unmatched_events, 'event')}) "
               f"went out while no subscriber matched {args.key} (none yet, or the subscribers or the router "
               "went away): nobody received them", file=sys.stderr)
     if args.json:
         print(json.dumps(summary), flush=True)
     else:
-        print(f"published {pub.events:,} events in {pub.packets:,} packets on {args.key} "
+        print(f"published {counted(pub.events, 'event')} in {counted(pub.packets, 'packet')} on {args.key} "
               f"({event_rate(summary['events_per_s'])})")
     return 0
 

@@ -27,6 +27,7 @@ from .common import (
     add_source_flags,
     attach_framer,
     check_numbers,
+    counted,
     create_folder,
     folder_note,
     not_the_input,
@@ -144,7 +145,7 @@ def cmd_replay(args) -> int:
             shown = sink.points_logged + sink.points_dropped
             if sink.points_dropped:
                 burst = int(sink.budget.capacity)  # saved-up points: a short recording draws more than rate x time
-                print(f"3D view: {sink.points_logged:,} of {shown:,} events drawn, {sink.points_dropped:,} "
+                print(f"3D view: {sink.points_logged:,} of {counted(shown, 'event')} drawn, {sink.points_dropped:,} "
                       f"dropped by the point budget ({args.point_budget:,}/s of event time, bursts up to "
                       f"{burst:,}); frames and stats use all")
             if lag.lags_s:

@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import threads
 from ..events import EventChunk, NoiseClass
-from .common import attach_framer, pipeline_from_args
+from .common import attach_framer, counted, pipeline_from_args
 
 
 def archive_path(template: str, camera: str, wildcard: bool, segment: int) -> str:
@@ -258,11 +258,12 @@ class Status:
 
 
 def print_summary(s: dict) -> None:
-    print(f"{s['events']:,} events in {s['packets']:,} packets from {len(s['cameras'])} camera(s) "
+    print(f"{counted(s['events'], 'event')} in {counted(s['packets'], 'packet')} from {len(s['cameras'])} camera(s) "
           f"in {s['wall_s']:.2f} s; stopped by {s['stopped_by']}")
     for name, c in s["cameras"].items():
-        line = (f"  {name}: {c['events']:,} events, {c['packets']:,} packets; missing {c['missing']:,} "
-                f"in {c['gaps']:,} gap(s); malformed {c['malformed']:,}, oversized {c['oversized']:,}; "
+        line = (f"  {name}: {counted(c['events'], 'event')}, {counted(c['packets'], 'packet')}; "
+                f"missing {c['missing']:,} in {c['gaps']:,} gap(s); malformed {c['malformed']:,}, "
+                f"oversized {c['oversized']:,}; "
                 f"restarts {c['restarts']}")
         if "events_signal" in c:
             line += (f"; signal {c['events_signal']:,}, background {c['events_background']:,}, "
@@ -273,11 +274,12 @@ def print_summary(s: dict) -> None:
                 line += f" (after the first second: p99 {c['latency_warm_p99_ms']:.1f} ms)"
         print(line)
         if "points_drawn" in c:
-            print(f"    viewer: {c['points_drawn']:,} points drawn, {c['points_dropped']:,} dropped "
+            print(f"    viewer: {counted(c['points_drawn'], 'point')} drawn, {c['points_dropped']:,} dropped "
                   f"({c['points_late']:,} of them because the viewer fell behind; the rest by the point budgets); "
                   "frames and statistics use every event")
         if c.get("published_packets"):
-            print(f"    republished {c['published_events']:,} events in {c['published_packets']:,} packets"
+            print(f"    republished {counted(c['published_events'], 'event')} in "
+                  f"{counted(c['published_packets'], 'packet')}"
                   + (f"; {c['published_unmatched_packets']:,} of them while no subscriber matched: nobody "
                      "received those" if c.get("published_unmatched_packets") else ""))
         for path in c.get("archives", []):
