@@ -131,7 +131,7 @@ def run_chain(recording: Path, n_events: int, rate_hz: float, load_hz: float, pa
     finally:
         kill_left(procs)
     sent, cleaned, got = outs["publisher"], outs["node"]["cameras"]["cam"], outs["subscriber"]["cameras"]["cam"]
-    span_s = sent["wall_s"] + got["latency_max_ms"] * 1e-3
+    span_s = sent["stream_s"] + got["latency_max_ms"] * 1e-3
     return {"offered_hz": load_hz, "published": sent["events"], "packets": sent["packets"],
             "node_events": cleaned["events"], "node_missing": cleaned["missing"], "clean_events": got["events"],
             "sustained_hz": cleaned["events"] / span_s, "p50_ms": got["latency_p50_ms"],
@@ -174,7 +174,7 @@ def run_cameras(recording: Path, n_cams: int, packet_us: int) -> dict:
     finally:
         kill_left(procs)
     published = sum(s["events"] for s in sent)
-    span_s = max(s["wall_s"] for s in sent) + max(c["latency_max_ms"] for c in got["cameras"].values()) * 1e-3
+    span_s = max(s["stream_s"] for s in sent) + max(c["latency_max_ms"] for c in got["cameras"].values()) * 1e-3
     return {"cameras": n_cams, "published": published, "node_events": node_events,
             "cores": sum(cpu.values()) / span_s, "missing": got["missing"], "total_hz": node_events / span_s,
             "p99_ms": max(c["latency_p99_ms"] for c in got["cameras"].values()),

@@ -211,6 +211,36 @@ def test_publisher_whose_router_goes_away_says_how_much_nobody_received(tmp_path
         procs.kill_all()
 
 
+def test_publish_says_its_rate_over_the_streaming_not_the_wait_for_a_subscriber(tmp_path):
+    """`publish` printed a rate over a time that counted more than the streaming (the user audit: the wait for a
+    subscriber, the drain; and the first packet's put, which loaded the encoder's kernels, ~0.5 s). Now the
+    rate is over the time from the first packet's put to the end of the last one's, said so, and the wait
+    and the drain are said apart: three disjoint parts of the run, so together no longer than it."""
+    import re
+
+    from test_zenoh_live import Procs, free_port
+
+    procs = Procs(tmp_path)
+    try:
+        port = free_port()
+        procs.router(port)
+        flags = ["--key", "evstream/cam/events", "--connect", f"tcp/127.0.0.1:{port}", "--speed", "0", "--drain-s", "1"]
+        pub = procs.start("publish", SHIPPED, *flags, "--wait-subscribers", "4", "--json")  # nobody will come
+        got = procs.result(pub)
+        assert got["packets"] == 50 and got["waited_s"] >= 4
+        assert got["stream_s"] > 0 and got["events_per_s"] == pytest.approx(got["events"] / got["stream_s"])
+        assert got["stream_s"] + got["waited_s"] + got["drained_s"] <= got["wall_s"]
+
+        pub = procs.start("publish", SHIPPED, *flags, "--wait-subscribers", "1")
+        assert pub.wait(timeout=120) == 0, procs.stderr(pub)
+        line = (tmp_path / f"out{pub.n}.txt").read_text().strip()
+        assert re.fullmatch(r"published 174,999 events in 50 packets on evstream/cam/events: [\d.]+ [Mk]? ?ev/s over "
+                            r"the [\d.]+ s from the first packet to the last \(not counted: [\d.]+ s waiting for a "
+                            r"subscriber(, [\d.]+ s draining)?\)", line), line
+    finally:
+        procs.kill_all()
+
+
 @pytest.mark.parametrize("name, where", [("dvxplorer_320x240_tonic.aedat4", ": event 0:"),  # no byte offsets
                                          ("prophesee_gen3_vga_evt2_faery.raw", " at byte 170: event 0:")])
 def test_an_error_never_names_a_made_up_byte_range(capsys, real_data, name, where):
