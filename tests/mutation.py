@@ -407,6 +407,14 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     # session 12: denoise_baselines, denoise_learned
 
     # session 12: codecs, codecs_payloads
+    "mono.encode: copy=None / True / left out for copy=False in the final astype('<u8'): a copy or not, the "
+    "same bytes (session 9's encode 58, 60, 63, renumbered by the x, y, p checks added since)": [
+        f"evstream.codecs.mono.x_encode__mutmut_{n}" for n in (70, 72, 75)],
+    "PacketEncoder's first encode_many scratch of float64 (np.empty's default) or of 1 word: encode_many needs "
+    "room for 4 words an event + 1 + a ramp of at least 7 words, so it replaces the first scratch (uint16) "
+    "before any use": [f"evstream.codecs.packets.xǁPacketEncoderǁ__init____mutmut_{n}" for n in (15, 17, 18)],
+    "EventPacket CDR layout: pad1 - 8 for pad1 + 8 moves the offset by 16, a multiple of 8, so pad2 and pad3 "
+    "(the offset mod 8 and mod 4) are the same": ["evstream.codecs.event_packet.x__layout__mutmut_26"],
 
     # session 12: framing, framing_windows, framing_represent, testing, sources_base
 

@@ -418,11 +418,17 @@ def test_evt3_sensor_clock_alone():
 
 
 def test_packet_opening_one_microsecond_past_its_time_high_decodes_alone():
-    """A first event at time-low 1 still gets its TIME_LOW word (the clock's low starts as none, not 0 or 1)."""
+    """A first event at time-low 1 still gets its TIME_LOW word, and one on row 1 its ADDR_Y (the clock's low
+    and row start as none, not 0 or 1): packets one by one and at once."""
     for low in (0, 1, 2):
-        t = np.array([(7 << 12) | low, (7 << 12) | low, (9 << 12) | 1])
-        pk = packets.to_packet(t, np.array([3, 8, 9]), np.array([1, 1, 2]), np.array([0, 1, 1]), width=16, height=16)
-        np.testing.assert_array_equal(packets.PacketDecoder(absolute=True).decode(pk)[0], t)
+        for row in (0, 1, 2):
+            ev = (np.array([(7 << 12) | low, (7 << 12) | low, (9 << 12) | 1]), np.array([3, 8, 9], np.uint16),
+                  np.array([row, row, 2], np.uint16), np.array([0, 1, 1], np.uint8))
+            alone = packets.to_packet(*ev, width=16, height=16)
+            at_once = packets.PacketEncoder(width=16, height=16).encode_many(*ev, [0, 3])
+            for pk in (alone, *at_once):
+                got = packets.PacketDecoder(absolute=True).decode(pk)
+                assert [a.tolist() for a in got] == [a.tolist() for a in ev]
 
 
 def test_to_packet_and_the_encoder_fill_every_field():
