@@ -25,10 +25,24 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
-__all__ = ["ReadAhead", "WriteBehind", "enabled"]
+__all__ = ["ReadAhead", "WriteBehind", "enabled", "take"]
 
 _END = object()
 _POLL_S = 0.05  # how often a blocked thread looks whether it should stop
+
+
+def take(q: queue.Queue) -> Any:
+    """`q.get()` for a thread that the main thread hands items to, which a Ctrl-C cannot leave asleep.
+
+    A KeyboardInterrupt that lands in the main thread's `put` after it woke the waiting thread and before it
+    struck that thread off the condition's list (threading.Condition.notify) leaves a stale entry there;
+    the next `put` then wakes that entry, not the thread, which would sleep forever beside an item (seen as
+    `convert` hanging after Ctrl-C). A timed wait looks at the queue again every `_POLL_S`."""
+    while True:
+        try:
+            return q.get(timeout=_POLL_S)
+        except queue.Empty:
+            continue
 
 
 def enabled(default: bool = True) -> bool:
@@ -135,7 +149,7 @@ class WriteBehind:
 
     def _run(self) -> None:
         while True:
-            item = self._queue.get()
+            item = take(self._queue)
             if item is _END:
                 self.cpu_s = time.thread_time()
                 return

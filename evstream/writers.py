@@ -24,7 +24,7 @@ from typing import Any
 from .events import EventChunk, NoiseClass, concat
 from .pipeline import Batch, Pipeline, RunStats, build, paced
 from .safe_write import AtomicOutput, being_read, is_no_space, no_space_error
-from .threads import ReadAhead, enabled
+from .threads import ReadAhead, enabled, take
 
 FILE_FORMATS = {".npz": "native", ".raw": "evt", ".h5": "hdf5", ".hdf5": "hdf5"}
 
@@ -247,12 +247,16 @@ class FileSink:
 
         self._queue = queue.Queue(maxsize=8)
 
+        def chunks():
+            while (chunk := take(self._queue)) is not None:  # take: a Ctrl-C in a put cannot strand it
+                yield chunk
+
         def encode():
             try:
-                prophesee_raw.save(self.part, iter(self._queue.get, None), self.geometry, version=self.format)
+                prophesee_raw.save(self.part, chunks(), self.geometry, version=self.format)
             except BaseException as e:  # handed to the writing thread at its next write or close
                 self._error.append(e)
-                while self._queue.get() is not None:  # let the writer finish its puts
+                while take(self._queue) is not None:  # let the writer finish its puts
                     pass
 
         self._thread = threading.Thread(target=encode, name="evstream-raw-writer", daemon=True)
