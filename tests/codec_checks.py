@@ -88,3 +88,12 @@ def check_kernel_agrees_with_reference(codec, ev):
         else:
             with pytest.raises(ValueError, match=f"event {want} "):
                 codec.encode(t, x, y, p)
+
+
+def packet_room(t, a: int, b: int, high: int) -> int:
+    """Packet a:b's worst case in words, as `PacketEncoder.encode_many` sizes its buffer: the opening
+    TIME_HIGH, 4 words an event, the TIME_HIGH steps from where the clock stands (5 words a wrap, one
+    more wrap's worth, the steps of at most 2047 and 2)."""
+    h = int(t[a]) >> 12 if high < 0 else high
+    t_last = int(t[b - 1])
+    return 1 + 4 * (b - a) + 5 * ((t_last >> 24) - (h >> 12) + 1) + ((t_last >> 12) - h) // 2047 + 2

@@ -3,7 +3,13 @@ encode -> decode round trips, faery agreement, and the real Gen4.1 recording."""
 
 import numpy as np
 import pytest
-from codec_checks import assert_events_equal, check_kernel_agrees_with_reference, checked_events, with_boundary_examples
+from codec_checks import (
+    assert_events_equal,
+    check_kernel_agrees_with_reference,
+    checked_events,
+    packet_room,
+    with_boundary_examples,
+)
 from hypothesis import example, given
 from hypothesis import strategies as st
 
@@ -437,15 +443,6 @@ def test_encoder_takes_the_largest_jump_it_allows():
 
 
 # -- packets: one kernel call for a batch ------------------------------------------------------------
-def _packet_room(t, a: int, b: int, high: int) -> int:
-    """Packet a:b's worst case in words, as `PacketEncoder.encode_many` sizes its buffer: the opening
-    TIME_HIGH, 4 words an event, the TIME_HIGH steps from where the clock stands (5 words a wrap, one
-    more wrap's worth, the steps of at most 2047 and 2)."""
-    h = int(t[a]) >> 12 if high < 0 else high
-    t_last = int(t[b - 1])
-    return 1 + 4 * (b - a) + 5 * ((t_last >> 24) - (h >> 12) + 1) + ((t_last >> 12) - h) // 2047 + 2
-
-
 def check_packets_kernel(t, x, y, p, bounds, high: int):
     """`_encode_packets_kernel` against the packets written one by one (`evt3_sensor_clock`, each from where
     the previous left the clock), for an `out` as long as encode_many makes it and, for each packet j, one
@@ -457,7 +454,7 @@ def check_packets_kernel(t, x, y, p, bounds, high: int):
     want, rooms, h = [], [], high
     for a, b in zip(bounds[:-1], bounds[1:]):
         want.append(evt3_sensor_clock(t[a:b], x[a:b], y[a:b], p[a:b], None if h < 0 else h))
-        rooms.append(_packet_room(t, a, b, h))
+        rooms.append(packet_room(t, a, b, h))
         h = int(t[b - 1]) >> 12
     starts = np.cumsum([0] + [len(w) // 2 for w in want])
     lengths = {sum(rooms), *(int(starts[j]) + rooms[j] + d for j in range(len(want)) for d in (-1, 0))}

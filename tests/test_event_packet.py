@@ -7,6 +7,7 @@ import re
 
 import numpy as np
 import pytest
+from codec_checks import packet_room
 from hypothesis import given
 from hypothesis import strategies as st
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
@@ -318,8 +319,9 @@ def test_evt3_packets_decode_alone_and_as_one_stream(ev, n_packets, seed):
        st.sampled_from([0, 5, 2047]))
 def test_packets_encoded_at_once_are_those_encoded_one_by_one(ev, n_packets, seed, continued, bad_x):
     """`encode_many` (one kernel call for a batch's EVT3 packets) makes the packets `encode` makes one after
-    the other, byte for byte, continuing the clock from where the previous batch left it; an event EVT3
-    cannot carry (x >= 2048) is refused with `encode`'s words, the packets before it made."""
+    the other, byte for byte, continuing the clock from where the previous batch left it, in one kernel call
+    with a scratch of the packets' worst cases (`packet_room`); an event EVT3 cannot carry (x >= 2048) is
+    refused with `encode`'s words, the packets before it made."""
     t, x, y, p = ev
     if not len(t):
         return
@@ -339,12 +341,51 @@ def test_packets_encoded_at_once_are_those_encoded_one_by_one(ev, n_packets, see
             error = str(e)
             break
     if error is None:
-        assert [encode_packet(pk) for pk in many.encode_many(t, x, y, p, bounds)] == want
+        before, high = len(many._scratch), -1 if many._time_high is None else many._time_high
+        got = many.encode_many(t, x, y, p, bounds)
+        assert [encode_packet(pk) for pk in got] == want
         assert (many.seq, many._time_high) == (one.seq, one._time_high)
+        # in one kernel call (the payloads are views of one buffer), its scratch sized for the packets' worst cases
+        assert all(isinstance(pk.events, memoryview) and pk.events.obj is got[0].events.obj for pk in got)
+        rooms = [packet_room(t, a, b, high if a == 0 else int(t[a - 1]) >> 12) for a, b in zip(bounds[:-1], bounds[1:])]
+        assert len(many._scratch) == max(before, sum(rooms))
     else:
         with pytest.raises(ValueError) as raised:
             many.encode_many(t, x, y, p, bounds)
         assert str(raised.value) == error
+
+
+@pytest.mark.parametrize("encoding", ["evt3", "mono"])
+def test_encode_many_takes_what_encode_takes(encoding):
+    """`encode_many` in either encoding makes the packets `encode` makes one by one (mono's too); no bounds
+    but 0 make no packet, events or none; one EVT3 packet is written by the kernel too; an empty packet and
+    a negative x, y or p given as int64 (not wrapped into range) are refused with `encode`'s words."""
+    ev = (np.array([5, 9, 9, 4200, 4200, 70_000]), np.array([1, 2, 3, 2047, 0, 5]), np.array([3, 3, 3, 0, 2047, 1]),
+          np.array([0, 1, 1, 1, 0, 1]))
+    new = lambda: packets.PacketEncoder(width=2048, height=2048, encoding=encoding)  # noqa: E731
+    one = new()
+    want = [encode_packet(one.encode(*(a[i:j] for a in ev))) for i, j in ((0, 1), (1, 4), (4, 6))]
+    many = new()
+    assert [encode_packet(pk) for pk in many.encode_many(*ev, [0, 1, 4, 6])] == want and many.seq == 3
+    assert new().encode_many(*ev, [0]) == [] == new().encode_many(*(a[:0] for a in ev), [0])
+    if encoding == "evt3":  # one packet in one kernel call too, its scratch sized from where the clock stands
+        late = (ev[0][1:] + 3 * (1 << 24), *(a[1:] for a in ev[1:]))
+        many = new()
+        many.encode_many(*(a[:1] for a in ev), [0, 1])  # leaves the clock at time-high 0
+        got = many.encode_many(*late, [0, 5])
+        assert isinstance(got[0].events, memoryview) and len(many._scratch) == packet_room(late[0], 0, 5, 0)
+    for bounds in ([0, 0], [0, 0, 0]):
+        with pytest.raises(ValueError, match="^a packet needs at least one event$"):
+            new().encode_many(*(a[:0] for a in ev), bounds)
+    for field in (1, 2, 3):
+        bad = [np.array(a, np.int64) for a in ev]
+        bad[field][4] = -1
+        by_one = new()
+        by_one.encode(*(a[:4] for a in bad))
+        with pytest.raises(ValueError) as refused:
+            by_one.encode(*(a[4:] for a in bad))
+        with pytest.raises(ValueError, match=f"^{re.escape(str(refused.value))}$"):
+            new().encode_many(*bad, [0, 4, 6])
 
 
 def test_faery_decodes_our_packets_identically(tmp_path):
