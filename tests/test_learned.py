@@ -33,6 +33,26 @@ from evstream.testing import assert_bounded_state, assert_causal, assert_chunk_i
 NF = len(FEATURES)
 
 
+# Small recordings for the tests that train, calibrate or evaluate (a 48x36 scene of 400 ms; files with
+# the synth command's default 50 % noise, as recordings/*.npz have): they check the same as on the shipped
+# 346x260 recordings, and the feature kernel meets ~20x fewer events (the noise injected at a rate per
+# pixel grows with the sensor): tests/mutation.py runs that kernel as plain Python, ~50 us an event.
+def small_recording(folder: Path, name: str = "bar", seed: int = 1, width: int = 48, height: int = 36,
+                    duration_ms: int = 400) -> Path:
+    """`evstream synth NAME` written to folder/NAME.npz."""
+    from evstream.cli import main
+
+    path = folder / f"{name}.npz"
+    assert main(["synth", name, str(path), "--seed", str(seed), "--width", str(width), "--height", str(height),
+                 "--duration-ms", str(duration_ms), "-q"]) == 0
+    return path
+
+
+def small_scene(name: str = "bar", seed: int = 1):
+    """The signal of a small recording (all SIGNAL, no noise)."""
+    return scene(name, Geometry(48, 36), duration_us=400_000, seed=seed)
+
+
 def random_model(seed, kind="mlp", hidden=8) -> Model:
     rng = np.random.default_rng(seed)
     rows = hidden if kind == "mlp" else 1
@@ -298,33 +318,30 @@ def test_train_command_writes_a_model_the_pipeline_uses(tmp_path):
     from evstream.cli import main
 
     out = tmp_path / "m.npz"
-    assert main(["train", "recordings/bar.npz", "--out", str(out), "--events-per-stream", "3000",
+    bar = str(small_recording(tmp_path))
+    assert main(["train", bar, "--out", str(out), "--events-per-stream", "3000",
                  "--without", "dc_own,dc_nb8"]) == 0
     m = load(out)
     left_out = [FEATURES.index("dc_own"), FEATURES.index("dc_nb8")]
     assert (m.w1[0, left_out] == 0).all() and (m.w1[0] != 0).sum() == NF - 2
     assert m.meta["features_left_out"] == ["dc_own", "dc_nb8"]
-    assert main(["train", "recordings/bar.npz", "--out", str(tmp_path / "x.npz"), "--without", "nope"]) == 2
+    assert main(["train", bar, "--out", str(tmp_path / "x.npz"), "--without", "nope"]) == 2
     assert m.meta["trained_on"][0]["file"] == "bar.npz" and len(m.meta["trained_on"][0]["sha256"]) == 64
     assert m.meta["noise_conditions"] == ["50%", "100%", "200%", "1Hz", "3Hz", "5Hz"]
     arch = tmp_path / "a.mcap"
-    assert main(["archive", "recordings/bar.npz", str(arch), "--denoise", "learned", "--model", str(out),
-                 "--keep", "0.8"]) == 0
+    assert main(["archive", bar, str(arch), "--denoise", "learned", "--model", str(out), "--keep", "0.8"]) == 0
     assert arch.stat().st_size > 0
     bad = tmp_path / "bad.npz"
     bad.write_bytes(out.read_bytes()[:100])
-    assert main(["archive", "recordings/bar.npz", str(tmp_path / "b.mcap"), "--denoise", "learned",
-                 "--model", str(bad)]) == 1
-    assert main(["archive", "recordings/bar.npz", str(tmp_path / "c.mcap"), "--model", str(out)]) == 2
+    assert main(["archive", bar, str(tmp_path / "b.mcap"), "--denoise", "learned", "--model", str(bad)]) == 1
+    assert main(["archive", bar, str(tmp_path / "c.mcap"), "--model", str(out)]) == 2
 
 
 def test_eval_scores_the_learned_method_leave_one_recording_out():
     """The model scoring a recording was trained on the others only: its metadata names them."""
     from evstream import evaluation
 
-    recs = {}
-    for name, seed in (("a", 1), ("b", 2), ("c", 3)):
-        recs[name] = scene("bar", Geometry(96, 72), duration_us=300_000, seed=seed)
+    recs = {name: small_scene("bar", seed) for name, seed in (("a", 1), ("b", 2), ("c", 3))}
     models = evaluation.loo_models(recs)
     for name, model in models.items():
         trained = {r["recording"] for r in model.meta["trained_on"]} if "trained_on" in model.meta else None
@@ -365,10 +382,9 @@ def test_no_reference_mesr_and_its_random_baseline():
 def test_thinned_copies_join_their_recording_and_leave_the_rest_unchanged():
     """`samples(thin=...)`: each recording's signal thinned to each fraction is more rows of the same
     recording (its calibration fold) under conditions of their own; the unthinned rows are the same."""
-    from evstream import api
     from evstream.denoise.learned.train import TRAIN_CONDITIONS, samples
 
-    recs = {"bar": api.read("recordings/bar.npz")}
+    recs = {"bar": small_scene()}
     plain = samples(recs, per_stream=1000)
     thinned = samples(recs, per_stream=1000, thin=(0.3,))
     n = len(plain.y)
@@ -384,10 +400,9 @@ def test_thinned_copies_set_the_operating_point_not_the_weights():
     thinned copies); the thresholds are calibrated on the thinned copies too, so a sparse scene's lower
     signal scores pull them down; `fit_thinned=True` fits the weights on the copies as well.
     `time_scale` copies enter the fit."""
-    from evstream import api
     from evstream.denoise.learned.train import train
 
-    recs = {"bar": api.read("recordings/bar.npz")}  # one recording: its unthinned rows are the same
+    recs = {"bar": small_scene()}  # one recording: its unthinned rows are the same
     plain = train(recs, per_stream=1000)
     thinned = train(recs, per_stream=1000, thin=(0.1,))
     both = train(recs, per_stream=1000, thin=(0.1,), fit_thinned=True)
@@ -404,10 +419,9 @@ def test_thinned_copies_set_the_operating_point_not_the_weights():
 def test_stretched_and_off_thinned_copies_join_their_recording():
     """`samples(time_scale=..., off_keep=...)`: more rows of the same recording under condition indices
     after the thinned copies'; the plain rows unchanged; a stretched copy spans `factor` × the time."""
-    from evstream import api
     from evstream.denoise.learned.train import TRAIN_CONDITIONS, samples, stretched
 
-    rec = api.read("recordings/bar.npz")
+    rec = small_scene()
     recs = {"bar": rec}
     plain = samples(recs, per_stream=1000)
     aug = samples(recs, per_stream=1000, thin=(0.3,), time_scale=(2.0,), off_keep=(0.5,))
@@ -418,15 +432,16 @@ def test_stretched_and_off_thinned_copies_join_their_recording():
     assert s.t[-1] - s.t[0] == 2 * (rec.t[-1] - rec.t[0]) and np.array_equal(s.x, rec.x)
 
 
-def test_label_free_calibration_keeps_near_what_is_asked():
+def test_label_free_calibration_keeps_near_what_is_asked(tmp_path):
     """`calibrate_to` sets the operating point from a stream's own events, no labels: on the bar scene
-    with 50 % noise the shipped model's fixed threshold keeps all the signal when 85 % is asked; the
-    calibrated one keeps close to 85 %, more for a higher keep. Labels given or not, the same result;
-    a stream too short to say leaves the thresholds as they were."""
+    with 50 % noise (64x48, 500 ms: 4,000 signal events after 256 ms) the shipped model's fixed threshold
+    keeps all the signal when 85 % is asked; the calibrated one keeps close to 85 %, more for a higher
+    keep. Labels given or not, the same result; a stream too short to say leaves the thresholds as they
+    were."""
     from evstream import api
     from evstream.denoise.learned.train import calibrate_to, stream_threshold
 
-    ev = api.read("recordings/bar.npz")
+    ev = api.read(small_recording(tmp_path, "bar", width=64, height=48, duration_ms=500))
     bare = ev.replace(label=None)
     model = load()
     cal = calibrate_to(model, {"bar": ev})
@@ -452,17 +467,17 @@ def test_calibrate_command(tmp_path):
     from evstream.cli import main
 
     out = tmp_path / "cal.npz"
-    assert main(["calibrate", "recordings/bar.npz", "--out", str(out)]) == 0
+    bar = str(small_recording(tmp_path))
+    assert main(["calibrate", bar, "--out", str(out)]) == 0
     m = load(out)
     assert "label-free" in m.meta["calibration"] and "bar" in m.meta["calibrated_on"]
     assert m.threshold() != load().threshold()
-    assert main(["archive", "recordings/bar.npz", str(tmp_path / "a.mcap"), "--denoise", "learned",
-                 "--model", str(out)]) == 0
+    assert main(["archive", bar, str(tmp_path / "a.mcap"), "--denoise", "learned", "--model", str(out)]) == 0
     short = tmp_path / "short.npz"
     assert main(["synth", "bar", str(short), "--duration-ms", "30", "--width", "32", "--height", "24",
                  "-q"]) == 0
     assert main(["calibrate", str(short), "--out", str(tmp_path / "x.npz")]) == 2
-    assert main(["calibrate", "recordings/bar.npz", "--model", str(out), "--out", str(out)]) == 2
+    assert main(["calibrate", bar, "--model", str(out), "--out", str(out)]) == 2
 
 
 def test_calibrate_never_writes_over_the_shipped_model(tmp_path, capsys):
@@ -506,10 +521,11 @@ def test_eval_scores_a_users_model_on_recordings_it_never_saw_and_refuses_its_ow
     from evstream.cli import main
 
     model = tmp_path / "mine_from_bar.npz"
-    assert main(["train", "recordings/bar.npz", "--out", str(model), "--events-per-stream", "3000"]) == 0
+    bar, ball = small_recording(tmp_path, "bar"), small_recording(tmp_path, "ball")
+    assert main(["train", str(bar), "--out", str(model), "--events-per-stream", "3000"]) == 0
     capsys.readouterr()
     rows_file = tmp_path / "rows.json"
-    assert main(["eval", "recordings/ball.npz", "--model", str(model), "--methods", "paper", "--ratios", "1",
+    assert main(["eval", str(ball), "--model", str(model), "--methods", "paper", "--ratios", "1",
                  "--rates-hz", "--seeds", "1", "--json", str(rows_file)]) == 0
     printed = capsys.readouterr().out
     assert "model:mine_from_bar" in printed
@@ -520,11 +536,11 @@ def test_eval_scores_a_users_model_on_recordings_it_never_saw_and_refuses_its_ow
             assert len({len(line) for line in lines}) == 1, block
     rows = {r["method"]: r for r in json.loads(rows_file.read_text())}
     assert set(rows) == {"paper", "model:mine_from_bar"}
-    ball = evaluation.as_signal(evstream.read("recordings/ball.npz"))[0]
+    ball = evaluation.as_signal(evstream.read(ball))[0]
     name = "model:mine_from_bar"
     by_hand = evaluation.evaluate("ball", ball, evaluation.Condition(noise_ratio=1.0), 0, [name],
                                   fixed={name: load(model)})[0]
     for metric in ("edp", "auc", "tpr"):
         assert rows["model:mine_from_bar"][metric] == pytest.approx(by_hand[metric]), metric
-    assert main(["eval", "recordings/bar.npz", "--model", str(model), "--ratios", "1", "--rates-hz"]) == 1
-    assert "was trained on recordings/bar.npz" in capsys.readouterr().err
+    assert main(["eval", str(bar), "--model", str(model), "--ratios", "1", "--rates-hz"]) == 1
+    assert f"was trained on {bar}" in capsys.readouterr().err
