@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ["NOT_SETTINGS", "RECORDING_SUFFIXES", "STOP_WAIT_S", "Task", "TaskInterrupted", "TaskResult", "TaskStop",
-           "out_name", "plan", "redo_reason", "run_many", "settings_file", "settings_of", "start_client"]
+           "check_main_guard", "out_name", "plan", "redo_reason", "run_many", "settings_file", "settings_of",
+           "start_client"]
 
 # What a folder walk takes as a recording (open_source reads by content; a walk needs a name filter).
 RECORDING_SUFFIXES = (".npz", ".npy", ".h5", ".hdf5", ".aedat4", ".aedat", ".mat", ".mcap", ".dat", ".raw",
@@ -447,6 +448,8 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     removed or an archive so far set aside); those still running after STOP_GRACE_S get TaskInterrupted
     raised where they are (a second Ctrl-C's effect; their clean-up runs), and all are waited for up to
     STOP_WAIT_S; they come back "interrupted". A second KeyboardInterrupt here closes the cluster at once."""
+    if client is None and not scheduler:
+        check_main_guard()  # before anything starts: the local cluster's workers would run the script again
     params = params or {}
     settings = settings_of(work, params, reads)
     results: dict[Task, TaskResult] = {}
@@ -481,6 +484,62 @@ def run_many(tasks: list[Task], work: Callable, params: dict | None = None, *, c
     for t in tasks:  # stopped before they were submitted
         results.setdefault(t, TaskResult(t.source, t.out, "interrupted", error="not started"))
     return [results[t] for t in tasks]
+
+
+def check_main_guard() -> None:
+    """Stop the script with one line naming it and its line (SystemExit: exit 1, no traceback) when called
+    while a script's top level runs outside `if __name__ == "__main__":`. A local cluster's workers are new
+    Python processes (multiprocessing's spawn) that import the script before they work: one that starts the
+    job at its top level would start it again in every worker (Dask's ~300 lines of 'Nanny failed to start'
+    followed). A notebook, `python -c`, a guarded script and the fork start method are left alone."""
+    import ast
+    import sys
+
+    import dask
+
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if path is None or dask.config.get("distributed.worker.multiprocessing-method", "spawn") == "fork":
+        return
+    frame = sys._getframe(1)
+    while frame is not None and not (frame.f_globals is vars(main) and frame.f_code.co_name == "<module>"):
+        frame = frame.f_back
+    if frame is None:  # not from the script's top level (a function called after it ran, another thread)
+        return
+    try:
+        tree = ast.parse(Path(path).read_bytes(), path)
+    except (OSError, SyntaxError, ValueError):
+        return
+    if not _under_main_guard(tree.body, frame.f_lineno):
+        raise SystemExit(f"{path}, line {frame.f_lineno}: run_many is called at the script's top level, and each "
+                         "worker process imports the script, so each would start the job again; put the job "
+                         "under `if __name__ == \"__main__\":` (docs/scale.md)")
+
+
+def _under_main_guard(body: list, line: int) -> bool:
+    """Whether `line` lies in the body of an `if __name__ == "__main__":` among the statements `body`."""
+    import ast
+
+    for stmt in body:
+        if not stmt.lineno <= line <= (stmt.end_lineno or stmt.lineno):
+            continue
+        if isinstance(stmt, ast.If) and _is_main_test(stmt.test) and stmt.body[0].lineno <= line <= (
+                stmt.body[-1].end_lineno or line):
+            return True
+        inner = [getattr(stmt, name, []) for name in ("body", "orelse", "finalbody")]
+        inner += [h.body for h in getattr(stmt, "handlers", [])] + [c.body for c in getattr(stmt, "cases", [])]
+        return any(isinstance(b, list) and _under_main_guard(b, line) for b in inner)
+    return False
+
+
+def _is_main_test(test) -> bool:
+    import ast
+
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = [test.left, test.comparators[0]]
+    return (any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides)
+            and any(isinstance(s, ast.Constant) and s.value == "__main__" for s in sides))
 
 
 def _submit_and_wait(todo, work, params, client, jobs, scheduler, retries, warm, stop, stopping, report,

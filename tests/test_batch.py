@@ -9,6 +9,8 @@ import json
 import os
 import shutil
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -497,3 +499,45 @@ def test_one_recording_into_a_folder_named_like_a_file_or_beside_a_namesake_says
     assert main([*argv[:2], str(tmp_path / "e.mcap") + "/", *argv[3:]]) == 0  # a folder asked for: no note
     said = capsys.readouterr()
     assert said.err == "" and "named: " in said.out
+
+
+SCRIPT = """import evstream
+from evstream import batch
+{before}
+def job():
+    tasks = batch.plan([{rec!r}], {out!r}, ".mcap")
+    for r in batch.run_many(tasks, evstream.archive, {{"end_us": 20_000}}, jobs=1):
+        print(r.status, r.events)
+{call}
+"""
+
+
+@pytest.mark.parametrize("before, call, line", [
+    ("", "job()", 8),  # the job started at the script's top level, as the audit's script did
+    ("", "if __name__ != '__main__':\n    pass\nelse:\n    job()", 11),  # a guard's else runs in the workers too
+    ("import sys\nif len(sys.argv) > 5:\n    pass\n", "for _ in range(1):\n    job()", 12),
+])
+def test_run_many_from_a_script_without_the_main_guard_is_one_line_saying_what_to_write(tmp_path, before, call, line):
+    """A script calling run_many outside `if __name__ == "__main__":` printed ~170 lines per worker ('Nanny
+    failed to start', multiprocessing's bootstrapping error: each spawned worker imports the script, which
+    started the job again). Now one line naming the script's line and what to write, exit 1, nothing started."""
+    script = tmp_path / "job.py"
+    script.write_text(SCRIPT.format(before=before, call=call, rec=str(ROOT / "recordings" / "bar.npz"),
+                                    out=str(tmp_path / "out")))
+    r = subprocess.run([sys.executable, script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert r.returncode == 1 and r.stdout == ""
+    assert r.stderr.splitlines() == [f"{script}, line {line}: run_many is called at the script's top level, and "
+                                     "each worker process imports the script, so each would start the job again; "
+                                     "put the job under `if __name__ == \"__main__\":` (docs/scale.md)"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_run_many_from_a_guarded_script_runs(tmp_path):
+    """The same script with the guard (the call reached through a function, the test reversed): the job runs
+    on the local cluster."""
+    script = tmp_path / "job.py"
+    script.write_text(SCRIPT.format(before="", call="if '__main__' == __name__:\n    job()",
+                                    rec=str(ROOT / "recordings" / "bar.npz"), out=str(tmp_path / "out")))
+    r = subprocess.run([sys.executable, script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[0] == "done" and (tmp_path / "out" / "bar.mcap").exists()
