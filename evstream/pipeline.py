@@ -8,6 +8,7 @@ bounded in memory (see `evstream.testing`).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import errno
 import importlib
@@ -123,6 +124,9 @@ class RunStats:
         }
 
 
+_UNCOPIED = ("uncopied",)  # Pipeline._built when the stages could not be copied
+
+
 @dataclass
 class Batch:
     """What sinks receive for each source chunk: its classified events, new frames, stats so far."""
@@ -133,15 +137,52 @@ class Batch:
 
 
 class Pipeline:
-    """Stages in order, then an optional framer. `process` one chunk, `finish` at end of stream."""
+    """Stages in order, then an optional framer. `process` one chunk, `finish` at end of stream.
+
+    A pipeline runs one stream at a time, and a new stream starts from the pipeline as it was built: the
+    first chunk after `finish`, and every `run` (and `evstream.batches`) of a pipeline that ran before,
+    start with its stages, framer and stats as they were before its first chunk (`restart`). Carrying a
+    stream's state into the next recording (or into a notebook cell run again) classed the start of the
+    second by the end of the first."""
 
     def __init__(self, stages: Iterable[Stage] = (), framer: Framer | None = None):
         self.stages = list(stages)
         self.framer = framer
         self.stats = RunStats()
         self.cpu_s: dict[str, float] = {}  # CPU seconds per thread of the last threaded `run`
+        self._built: tuple | None = None  # (stages, framer) as before the first chunk, copied then
+        self._ended = False  # `finish` was called: the next chunk starts a new stream
+
+    @property
+    def used(self) -> bool:
+        """Whether a stream has run through the pipeline since it was built or restarted."""
+        return self._built is not None and (self._ended or self.stats.chunks > 0)
+
+    def restart(self) -> None:
+        """Stages, framer and stats as they were before the first chunk: what a newly built pipeline of the
+        same stages gives. A stage that could not be copied then (one of the user's own, holding a file or
+        a lock, say) makes this a ValueError saying to build a new pipeline."""
+        if self._built is None:
+            return
+        if self._built is _UNCOPIED:
+            raise ValueError("this pipeline has already run a stream, and its stages could not be copied to start "
+                             "the next one afresh; build a new pipeline for each stream")
+        self.stages, self.framer = copy.deepcopy(self._built)
+        self.stats = RunStats()
+        self._ended = False
+
+    def _start(self) -> None:
+        if self._ended:
+            self.restart()
+        if self._built is None:
+            try:
+                self._built = copy.deepcopy((self.stages, self.framer))
+            except Exception:  # noqa: BLE001 - a stage of the user's own that cannot be copied: one stream only
+                self._built = _UNCOPIED
 
     def process(self, chunk: EventChunk) -> Batch:
+        if self._built is None or self._ended:
+            self._start()
         n = len(chunk)
         for stage in self.stages:
             chunk = stage(chunk)
@@ -151,8 +192,10 @@ class Pipeline:
         return Batch(chunk, frames, self.stats)
 
     def finish(self, geometry: Geometry) -> Batch:
-        frames = self.framer.finish() if self.framer is not None else []
+        """The frames the end of the stream closes; the next chunk starts a new stream (`restart`)."""
+        frames = self.framer.finish() if self.framer is not None and not self._ended else []
         self.stats.frames += len(frames)
+        self._ended = self._built is not None or self._ended
         return Batch(EventChunk.empty(geometry, with_cls=True), frames, self.stats)
 
     def run(
@@ -171,6 +214,8 @@ class Pipeline:
         `stop`: asked after each chunk; true ends the run there, as if the source had ended."""
         from .threads import ReadAhead, WriteBehind
 
+        if self.used:  # one run is one stream, from the pipeline as built
+            self.restart()
         sinks = list(sinks)
         t0, cpu0 = time.perf_counter(), time.thread_time()
         geometry = None  # of the events leaving the stages: a transform may crop, rotate, downsample

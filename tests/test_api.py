@@ -426,3 +426,67 @@ def test_represent_is_a_tonic_style_transform_to_arrays(kind, params):
         evstream.Represent(sensor_size=(40, 30), kind="fw")
     with pytest.raises(ValueError, match="^voxel: bins must be"):
         evstream.Represent(sensor_size=(40, 30), kind="voxel", bins=0)  # when made, not in a DataLoader worker
+
+
+def _stream_result(pipe, rec, stop_after=None):
+    """Classes, frames and statistics of one `batches` run of `pipe` over `rec` (cut after `stop_after` batches)."""
+    classes, frames = [], []
+    for i, batch in enumerate(evstream.batches(pipe, evstream.open(rec))):
+        if stop_after is not None and i == stop_after:
+            break
+        classes.append(batch.events.classes().copy() if len(batch.events) else np.zeros(0, np.uint8))
+        frames += [(f.t_start, f.t_end, f.n_events, f.image.copy()) for f in batch.frames]
+    return np.concatenate(classes), frames, pipe.stats.as_dict() | {"wall_s": 0, "throughput_hz": 0}, pipe.reports()
+
+
+def _same(got, want) -> bool:
+    (c1, f1, s1, r1), (c2, f2, s2, r2) = got, want
+    return (np.array_equal(c1, c2) and s1 == s2 and r1 == r2 and len(f1) == len(f2)
+            and all(a[:3] == b[:3] and np.array_equal(a[3], b[3]) for a, b in zip(f1, f2)))
+
+
+@pytest.mark.parametrize("stages", [("paper",), ("stcf", {"kind": "rate_limit", "rate_hz": 50_000})])
+def test_a_pipeline_given_another_stream_gives_what_a_new_pipeline_gives(stages):
+    """The same pipeline object over a second recording (or the first again: a notebook cell run twice)
+    carried the first stream's state into the second: bar.npz after ball.npz was classed with ball's state
+    and its stats said 447,748 events in (both added up). Each `batches` is one stream, from the pipeline
+    as built: both streams, the first again and a run after one left early give what new pipelines give."""
+    def fresh():
+        return evstream.build_pipeline(*stages, framer="fw")
+
+    pipe = fresh()
+    first = _stream_result(pipe, "recordings/ball.npz")
+    second = _stream_result(pipe, BAR)
+    again = _stream_result(pipe, "recordings/ball.npz")
+    assert _same(first, _stream_result(fresh(), "recordings/ball.npz"))
+    assert _same(second, _stream_result(fresh(), BAR))
+    assert _same(again, first)
+    _stream_result(pipe, BAR, stop_after=3)  # a loop left early (an error, a break), then run again
+    assert _same(_stream_result(pipe, BAR), second)
+
+
+def test_pipeline_process_after_finish_and_run_start_a_new_stream(tmp_path):
+    chunks = list(evstream.open(BAR))
+    pipe = evstream.build_pipeline("paper", framer="fw")
+    want = [pipe.process(c).events.classes().copy() for c in chunks]
+    pipe.finish(chunks[0].geometry)
+    assert all(np.array_equal(pipe.process(c).events.classes(), w) for c, w in zip(chunks, want))  # a new stream
+    assert pipe.stats.events_in == sum(len(c) for c in chunks)
+    stats = [pipe.run(evstream.open(BAR)).as_dict()["events_signal"] for _ in range(2)]
+    assert stats == [int(sum((w == 0).sum() for w in want))] * 2
+
+
+def test_a_pipeline_whose_stage_cannot_be_copied_refuses_a_second_stream_in_one_line():
+    import threading
+
+    class Locked:  # a stage of the user's own holding a lock: no copy of it as built
+        def __init__(self):
+            self.lock = threading.Lock()
+
+        def __call__(self, chunk):
+            return chunk
+
+    pipe = evstream.Pipeline([Locked()])
+    assert sum(len(b.events) for b in evstream.batches(pipe, evstream.open(BAR))) == 174_999
+    with pytest.raises(ValueError, match="build a new pipeline for each stream"):
+        list(evstream.batches(pipe, evstream.open(BAR)))
