@@ -28,6 +28,7 @@ import numpy as np
 from .events import EventChunk, EventError, Geometry, NoiseClass, Validator, concat
 from .pipeline import Batch, Pipeline, build, factory, kinds
 
+MAX_REPRESENT_BYTES = 1 << 30  # Represent's array at most this (1 GiB) unless told otherwise
 _UNITS = {"_us": "µs", "_ms": "ms", "_s": "s", "_hz": "Hz", "_px": "pixels", "_events": "events"}
 
 
@@ -412,14 +413,18 @@ class Denoise:
 
 class Represent:
     """A tonic-style transform to a learning representation: called on one sample's structured array (t, x,
-    y, p; or an EventChunk), returns every window's representation that the framer `kind` (timesurface,
-    voxel, histogram, count, timestamp; docs/framing.md) gives for it, as one float32 array (windows, C,
-    H, W) — `torch.from_numpy` shares it. Each call starts a fresh framer, so samples stay independent.
+    y, p; or an EventChunk, or a stream of chunks), returns every window's representation that the framer
+    `kind` (timesurface, voxel, histogram, count, timestamp; docs/framing.md) gives for it, as one float32
+    array (windows, C, H, W) — `torch.from_numpy` shares it. Each call starts a fresh framer, so samples
+    stay independent. The array is at most `max_bytes` (default 1 GiB; None: no cap): a sample that would
+    make more is a ValueError saying so before memory runs out; `windows(events)` gives the same
+    representations one window at a time, in memory bounded by the sensor and one window, however long
+    the recording (`evstream.open(path)` streams it from the file).
 
         to_voxels = Represent(sensor_size=(346, 260, 2), kind="voxel", bins=5, window_us=50_000)
     """
 
-    def __init__(self, sensor_size, kind: str = "voxel", **params):
+    def __init__(self, sensor_size, kind: str = "voxel", *, max_bytes: int | None = MAX_REPRESENT_BYTES, **params):
         from .framing.represent import RepresentationFramer
 
         self.geometry = as_geometry(sensor_size)
@@ -429,15 +434,47 @@ class Represent:
             ours = [k for k in kinds("framer") if issubclass(factory("framer", k), RepresentationFramer)]
             raise ValueError(f"Represent: {kind!r} makes frames to look at, not arrays; the representations: "
                              f"{', '.join(ours)} (window={kind!r} chooses the window)")
+        if max_bytes is not None and (isinstance(max_bytes, bool) or not isinstance(max_bytes, numbers.Integral)
+                                      or max_bytes < 1):
+            raise ValueError(f"Represent: max_bytes={max_bytes!r}: a whole number of bytes, at least 1, or None")
+        self.max_bytes = max_bytes
         self.shape = (len(framer.channels), self.geometry.height, self.geometry.width)
 
     def __call__(self, events) -> np.ndarray:
-        chunk = events if isinstance(events, EventChunk) else from_structured(events, self.geometry)
+        window_bytes = 4 * int(np.prod(self.shape))
+        data = []
+        for rep in self.windows(events):
+            if self.max_bytes is not None and (len(data) + 1) * window_bytes > self.max_bytes:
+                raise ValueError(
+                    f"Represent: {self.spec['kind']} of this sample is more than {len(data):,} windows of "
+                    f"{'x'.join(map(str, self.shape))} float32 ({window_bytes * (len(data) + 1) / 2**30:.2f} GiB "
+                    f"with the next, over max_bytes={self.max_bytes:,}): take them one at a time with "
+                    "Represent.windows(events), or pass max_bytes=None (or a larger cap)")
+            data.append(rep.data)
+        out = np.empty((len(data), *self.shape), np.float32)
+        for i in range(len(data)):  # copied in and let go one by one: memory of one array, not two
+            out[i], data[i] = data[i], None
+        return out
+
+    def windows(self, events) -> Iterator:
+        """The representations one window at a time, as `Representation`s (`.data` float32 (C, H, W),
+        `.t_start`, `.t_end`, `.n_events`), from a structured array, a chunk or a stream of chunks (read
+        as it goes: memory bounded by the sensor and one window, not the recording)."""
         framer = build("framer", self.spec)
-        data = [r.data for r in [*framer.push(chunk), *framer.finish()]]
-        return np.stack(data) if data else np.zeros((0, *self.shape), np.float32)
+        if isinstance(events, (EventChunk, np.ndarray)):
+            chunks = [events if isinstance(events, EventChunk) else from_structured(events, self.geometry)]
+        else:
+            chunks = _stream(events, "Represent")
+        for chunk in chunks:
+            if chunk.geometry != self.geometry:
+                raise ValueError(f"Represent: the events are on a {chunk.geometry} sensor, the transform's "
+                                 f"sensor_size is {self.geometry}")
+            yield from framer.push(chunk)
+        yield from framer.finish()
 
     def __repr__(self) -> str:
         params = "".join(f", {k}={v!r}" for k, v in self.spec.items() if k != "kind")
+        if self.max_bytes != MAX_REPRESENT_BYTES:
+            params += f", max_bytes={self.max_bytes!r}"
         return (f"Represent(sensor_size=({self.geometry.width}, {self.geometry.height}), "
                 f"kind={self.spec['kind']!r}{params})")

@@ -490,3 +490,49 @@ def test_a_pipeline_whose_stage_cannot_be_copied_refuses_a_second_stream_in_one_
     assert sum(len(b.events) for b in evstream.batches(pipe, evstream.open(BAR))) == 174_999
     with pytest.raises(ValueError, match="build a new pipeline for each stream"):
         list(evstream.batches(pipe, evstream.open(BAR)))
+
+
+def test_represent_of_a_long_recording_is_capped_or_taken_one_window_at_a_time():
+    """`Represent` stacked every window of a sample in memory: a long recording asked for all of it at
+    once (an hour at 346x260, 5 bins, 50 ms windows: 130 GB). The array form stops, in one line, at
+    `max_bytes` (before the window past it is kept); `windows()` gives the same arrays one at a time from a
+    stream, in memory bounded by one window, however many windows the stream makes."""
+    import tracemalloc
+
+    from evstream.events import concat
+
+    g = Geometry(346, 260)
+    stream = [random_stream(s, 3000, g, t0_us=s * 50_000, mean_dt_us=15) for s in range(40)]  # ~2 s, ~200 windows
+    whole = concat(stream, g)
+    params = {"kind": "voxel", "bins": 5, "window_us": 10_000}
+    window_bytes = 4 * 5 * 260 * 346
+    want = evstream.Represent(sensor_size=(346, 260), max_bytes=None, **params)(whole)
+    assert len(want) > 150
+
+    capped = evstream.Represent(sensor_size=(346, 260), max_bytes=3 * window_bytes, **params)
+    with pytest.raises(ValueError, match=r"^Represent: voxel of this sample is more than 3 windows of 5x260x346 "
+                                         r"float32 \(0\.01 GiB with the next, over max_bytes=5,397,600\): take "
+                                         r"them one at a time with Represent\.windows\(events\), or pass "
+                                         r"max_bytes=None \(or a larger cap\)$"):
+        capped(whole)
+    assert np.array_equal(evstream.Represent(sensor_size=(346, 260), max_bytes=len(want) * window_bytes,
+                                             **params)(whole), want)  # exactly at the cap: whole
+    assert evstream.Represent(sensor_size=(346, 260), **params).max_bytes == 1 << 30
+
+    to_voxels = evstream.Represent(sensor_size=(346, 260), **params)
+    tracemalloc.start()
+    try:
+        n, peak_windows = 0, 0
+        for rep in to_voxels.windows(iter(stream)):  # a generator, as evstream.open(path) is: read as it goes
+            assert np.array_equal(rep.data, want[n])
+            n += 1
+            peak_windows = max(peak_windows, tracemalloc.get_traced_memory()[0] / window_bytes)
+        peak = tracemalloc.get_traced_memory()[1] / window_bytes
+    finally:
+        tracemalloc.stop()
+    assert n == len(want) and peak < 20, (n, peak)  # the framer's state and a window or two (9 here), not ~200
+    with pytest.raises(ValueError, match=r"^Represent: the events are on a 40x30 sensor, the transform's "
+                                         r"sensor_size is 346x260$"):
+        to_voxels(random_stream(1, 100, G))
+    with pytest.raises(ValueError, match="max_bytes=0: a whole number of bytes"):
+        evstream.Represent(sensor_size=(346, 260), max_bytes=0, **params)
