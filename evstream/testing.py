@@ -154,9 +154,11 @@ def state_nbytes(obj, _seen=None) -> int:
         return 8 * len(obj) + sum(state_nbytes(v, seen) for v in obj)
     if isinstance(obj, dict):
         return sum(state_nbytes(v, seen) for v in obj.values())
-    if hasattr(obj, "__dict__"):
-        return state_nbytes(vars(obj), seen)
-    return 0
+    # an object's attributes: its __dict__ and its classes' __slots__ (a slotted object has no __dict__)
+    slots = [[k.__slots__] if isinstance(k.__slots__, str) else k.__slots__
+             for k in type(obj).__mro__ if "__slots__" in vars(k)]
+    held = [getattr(obj, name, None) for names in slots for name in names]
+    return state_nbytes(getattr(obj, "__dict__", {}), seen) + sum(state_nbytes(v, seen) for v in held)
 
 
 def assert_bounded_state(

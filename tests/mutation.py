@@ -417,6 +417,14 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "(the offset mod 8 and mod 4) are the same": ["evstream.codecs.event_packet.x__layout__mutmut_26"],
 
     # session 12: framing, framing_windows, framing_represent, testing, sources_base
+    "VoxelGrid._add and _add_flat: their table branch is never taken (every caller, `add`, `take` and "
+    "`add_flat`, first asks `_count_add` / `_count_take` / `_count_add_flat`, which take the window in one "
+    "kernel whenever `_table` of the same span gives a table), so a mutant there, or `table = None`, changes "
+    "nothing": [
+        *(f"evstream.framing.represent.xǁVoxelGridǁ_add__mutmut_{n}" for n in (1, *range(32, 56))),
+        *(f"evstream.framing.represent.xǁVoxelGridǁ_add_flat__mutmut_{n}" for n in (1, *range(22, 36)))],
+    "the time surface's counted positions over fn windows (`where`) computed again for each frame: the same "
+    "array": ["evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_27"],
 
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}

@@ -73,6 +73,23 @@ class Hoards:
         return c.replace(cls=np.zeros(len(c), np.uint8))
 
 
+class Box:
+    """A slotted holder: no __dict__ (as represent's `_Grid`)."""
+
+    __slots__ = ("data", "more")
+
+    def __init__(self, data):
+        self.data = data
+
+
+class HoardsInBoxes(Hoards):
+    """Breaks the memory bound in slotted objects: keeps every timestamp, each in a `Box`."""
+
+    def __call__(self, c):
+        self.seen.append(Box(c.t.copy()))
+        return c.replace(cls=np.zeros(len(c), np.uint8))
+
+
 @given(st.integers(0, 2**32))
 def test_kit_accepts_a_correct_stage(seed):
     s = random_stream(seed, 300)
@@ -93,8 +110,9 @@ def test_kit_catches_peeking_at_the_future():
 
 def test_kit_bounds_state():
     assert_bounded_state(LastSeen, lambda n: random_stream(0, n))
-    with pytest.raises(AssertionError, match="grows with stream length"):
-        assert_bounded_state(Hoards, lambda n: random_stream(0, n))
+    for hoards in (Hoards, HoardsInBoxes):
+        with pytest.raises(AssertionError, match="grows with stream length"):
+            assert_bounded_state(hoards, lambda n: random_stream(0, n))
 
 
 @given(st.integers(0, 2**32), st.integers(0, 50))
@@ -427,6 +445,27 @@ def test_state_nbytes_counts_an_array_once_however_it_is_reached():
     assert state_nbytes([a, holder]) == 16 + 800 and state_nbytes([a, {"k": a}]) == 16 + 800
     holder.me = holder  # a cycle through an object's attributes
     assert state_nbytes(holder) == 800
+
+
+def test_state_nbytes_counts_what_slotted_objects_hold():
+    from evstream.testing import state_nbytes
+
+    class One:
+        __slots__ = "data"  # one slot, named by a string
+
+    class Both(Box):  # slots of its base and a __dict__ of its own
+        pass
+
+    a, b = np.zeros(100, np.int64), np.zeros(10, np.int32)
+    assert state_nbytes(Box(a)) == 800  # its unset slot holds nothing
+    one = One()
+    one.data = a
+    assert state_nbytes(one) == 800 and state_nbytes(One()) == 0
+    both = Both(a)
+    both.more, both.extra = b, np.zeros(3, np.uint8)
+    assert state_nbytes(both) == 800 + 40 + 3
+    both.extra = a  # shared with a slot: once
+    assert state_nbytes(both) == 800 + 40
 
 
 def test_chunk_invariance_without_one_event_chunks_does_not_feed_them_all():

@@ -4,13 +4,14 @@ against a plain-Python definition over the frames the windowing framer emits, an
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evstream.events import EventChunk, Geometry
+from evstream.events import EventChunk, Geometry, concat
 from evstream.framing.base import COUNT_MAX
 from evstream.framing.fixed import FN_DONE, FN_FULL, FN_TIMEOUT, accumulate, fn_scan
 from evstream.framing.overlap import add_flat, slide_kernel
@@ -20,6 +21,7 @@ from evstream.framing.represent import (
     NEVER_US,
     REPRESENTATIONS,
     Representation,
+    RepresentationFramer,
     last_time_count_of,
     last_time_of,
     last_time_take,
@@ -55,6 +57,8 @@ WINDOWS = {
     "adaptive": {"window_us": 4000, "n_base": 60},
 }
 EXTRA = {"voxel": {"bins": 4}, "timesurface": {"tau_us": 2000.0}}
+CHANNELS = {"timesurface": ("off", "on"), "voxel": ("bin0", "bin1", "bin2", "bin3"), "histogram": ("off", "on"),
+            "count": ("events",), "timestamp": ("off", "on")}
 
 
 def make(kind, window, **more):
@@ -135,8 +139,72 @@ def test_matches_the_definition(kind, window, all_events):
     for fr, ref in zip(frames, reference(kind, stream, frames, window, all_events=all_events)):
         assert isinstance(fr, Representation) and fr.kind == kind
         assert fr.data.dtype == np.float32 and fr.data.flags.c_contiguous and fr.data.flags.owndata
-        assert fr.data.shape == ref.shape and len(fr.channels) == ref.shape[0]
+        assert fr.data.shape == ref.shape and fr.channels == CHANNELS[kind]
         np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
+@pytest.mark.parametrize("window", ["fw", "oa", "adaptive"])
+@pytest.mark.parametrize("kind", REPRESENTATIONS)
+def test_windows_without_events_are_zero(kind, window):
+    """A quiet stretch of several windows: each empty window is emitted (max_empty_frames), all zero."""
+    first = labelled(7, 300)
+    second = labelled(8, 300)
+    gap = int(first.t[-1]) + 20_000
+    stream = concat([first, second.replace(t=second.t + gap)])
+    frames = frames_of(make(kind, window)(), [stream])
+    assert sum(fr.n_events == 0 for fr in frames) >= 3
+    for fr, ref in zip(frames, reference(kind, stream, frames, window), strict=True):
+        assert fr.data.shape == ref.shape and fr.channels == CHANNELS[kind]
+        np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
+@dataclass(eq=False)
+class BufferedHistogram(RepresentationFramer):
+    """The smallest subclass (`channels_of` and `_compute` alone): it buffers its windows' events and finds
+    each window's by time (by count over fn windows), as no shipped representation does over time windows
+    (the voxel grid and the timestamp image add events as they are counted). Here: the histogram."""
+
+    kind = "buffered-histogram"
+
+    def __post_init__(self):
+        self._setup()
+
+    def channels_of(self) -> tuple:
+        return ("off", "on")
+
+    def _compute(self, fr, a, b):
+        la, lb = self._local(a, b)
+        g = self.geometry
+        per_pixel = np.bincount(self._buf.f[la:lb], minlength=2 * g.n_pixels)
+        return per_pixel.astype(np.float32).reshape(2, g.height, g.width)
+
+
+@pytest.mark.parametrize("window", sorted(WINDOWS))
+def test_a_subclass_that_buffers_finds_each_windows_events(window):
+    stream = labelled(12, 2000)
+
+    def make_it():
+        return BufferedHistogram(window=window, **WINDOWS[window])
+
+    for chunks in ([stream], [stream[a : a + 97] for a in range(0, len(stream), 97)]):
+        frames = frames_of(make_it(), chunks)
+        assert len(frames) > 5 and not make_it()._direct
+        for fr, ref in zip(frames, reference("histogram", stream, frames, window), strict=True):
+            np.testing.assert_array_equal(fr.data, ref)
+    assert_chunk_invariant(make_it, stream, 3, apply=frames_of, splits=2)
+    assert_bounded_state(make_it, lambda n: labelled(5, n), n=3000, feed=lambda f, c: f.push(c))
+
+
+@pytest.mark.parametrize("kind", ["voxel", "timestamp"])
+def test_fixed_count_windows_over_chunks_larger_than_the_buffer(kind):
+    """Over fn windows the voxel grid and timestamp image buffer each window's events: chunks of thousands of
+    events grow that buffer (4096 events at first), and later ones move its events to the front."""
+    stream = labelled(13, 12_000)
+    for size in (12_000, 2500):
+        frames = frames_of(make(kind, "fn")(), [stream[a : a + size] for a in range(0, len(stream), size)])
+        assert len(frames) > 50
+        for fr, ref in zip(frames, reference(kind, stream, frames, "fn"), strict=True):
+            np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
 
 
 @pytest.mark.parametrize("window", sorted(WINDOWS))
@@ -633,6 +701,27 @@ def test_state_is_bounded(window):
         assert_bounded_state(make(kind, window), lambda n: labelled(5, n), n=3000, feed=lambda f, c: f.push(c))
 
 
+def noise_between(seed, n):
+    """`labelled`, but only the first 3 ms of every 24 ms hold counted events: the windows between hold
+    noise alone."""
+    s = labelled(seed, n)
+    return s.replace(cls=np.where(s.t % 24_000 >= 3000, 1, s.cls).astype(np.uint8))
+
+
+@pytest.mark.parametrize("window", ["fw", "oa", "adaptive"])
+def test_windows_of_noise_alone_leave_no_state(window):
+    """A window that adds events as they are counted has an array from its first event, counted or not;
+    one the framer passes without emitting it (noise alone, no empty frames) is dropped."""
+    for kind in ("timestamp", "voxel"):
+        make_it = make(kind, window, max_empty_frames=0)
+        stream = noise_between(6, 3000)
+        frames = frames_of(make_it(), [stream])
+        assert len(frames) >= 5
+        for fr, ref in zip(frames, reference(kind, stream, frames, window), strict=True):
+            np.testing.assert_allclose(fr.data, ref, rtol=1e-5, atol=1e-6)
+        assert_bounded_state(make_it, lambda n: noise_between(6, n), n=3000, feed=lambda f, c: f.push(c))
+
+
 @pytest.mark.parametrize("kind", REPRESENTATIONS)
 def test_cameras_are_independent(kind):
     streams = [labelled(k, 500) for k in range(3)]
@@ -646,6 +735,40 @@ def test_time_surface_under_many_splits(window):
         assert_chunk_invariant(make("timesurface", window), stream, seed, apply=frames_of, splits=3)
         assert_chunk_invariant(make("timesurface", window, all_events=True), stream, seed, apply=frames_of,
                                splits=2, one_event=False)
+
+
+@pytest.mark.parametrize("window", sorted(WINDOWS))
+def test_time_surface_of_a_pixel_2_31_us_old_with_a_long_tau(window):
+    """int32 newest times (rebased) only while τ·128 <= 2^31 µs: with τ = 3e7 µs a pixel 2^31 µs old is
+    exp(−71.6), about 1e-31, a normal float32, not "never" (0)."""
+    rng = np.random.default_rng(5)
+    g = Geometry(4, 3)
+    t = np.sort(np.concatenate([rng.integers(0, 10**6, 40), rng.integers(2**31 + 5 * 10**6, 2**31 + 6 * 10**6, 40)]))
+    stream = EventChunk.from_arrays(t, rng.integers(0, 4, len(t)), rng.integers(0, 3, len(t)),
+                                    rng.integers(0, 2, len(t)), g)
+    params = {"fw": {"window_us": 2**27, "max_empty_frames": 0}, "fn": {"n_events": 20},
+              "oa": {"window_us": 2**27, "max_empty_frames": 0},
+              "adaptive": {"window_us": 2**27, "n_base": 30, "max_empty_frames": 0}}[window]
+    spec = {"kind": "timesurface", "window": window, **params, "tau_us": 3e7}
+    frames = frames_of(build("framer", spec), [stream])
+    late = [fr for fr in frames if fr.t_start > 2**31]
+    assert late and all(np.any((fr.data > 0) & (fr.data < 1e-30)) for fr in late)
+    for fr, ref in zip(frames, reference("timesurface", stream, frames, window, tau_us=3e7), strict=True):
+        np.testing.assert_allclose(fr.data, ref, rtol=1e-5, atol=math.exp(EXP_MIN_NORMAL) * (1 + 1e-5))
+
+
+def test_time_surface_windows_before_a_chunk_spanning_2_31_us():
+    """Fixed time windows a chunk closes before its first event are made before any of its events is applied:
+    the int32 base must not move to the chunk's last time first (older pixels would become "never" there,
+    though their surface at those windows' ends is still well above 0)."""
+    g = Geometry(3, 2)
+    t = np.array([0, 5, 10, 10**9, 15 * 10**8, 23 * 10**8], np.int64)
+    stream = EventChunk.from_arrays(t, np.array([0, 1, 2, 0, 1, 2]), np.zeros(6, int), np.array([1, 0, 1, 1, 1, 0]), g)
+    spec = {"kind": "timesurface", "window": "fw", "window_us": 2**27, "tau_us": 2.0**24}
+    frames = frames_of(build("framer", spec), [stream[:3], stream[3:]])
+    assert len(frames) > 7 and frames[1].data.max() > 1e-7
+    for fr, ref in zip(frames, reference("timesurface", stream, frames, "fw", tau_us=2.0**24), strict=True):
+        np.testing.assert_allclose(fr.data, ref, rtol=1e-5, atol=math.exp(EXP_MIN_NORMAL) * (1 + 1e-5))
 
 
 @pytest.mark.parametrize("window", sorted(WINDOWS))  # each moves the base its own way (oa, adaptive: `take`)
