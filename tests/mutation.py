@@ -413,6 +413,20 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "PacketEncoder's first encode_many scratch of float64 (np.empty's default) or of 1 word: encode_many needs "
     "room for 4 words an event + 1 + a ramp of at least 7 words, so it replaces the first scratch (uint16) "
     "before any use": [f"evstream.codecs.packets.xǁPacketEncoderǁ__init____mutmut_{n}" for n in (15, 17, 18)],
+    "PacketEncoder.encode_many: bounds and t without their dtype (ascontiguousarray(.., None)): every caller "
+    "gives integers (the MCAP sink int64 bounds and times, tests lists of ints: int64 without the dtype), and "
+    "an integer array of another dtype carries the same indices and times through the same arithmetic": [
+        f"evstream.codecs.packets.xǁPacketEncoderǁencode_many__mutmut_{n}" for n in (3, 5, 35, 37)],
+    "PacketEncoder.encode_many: ramp floored at 1 for 0 (it is at least 7: 5 (wraps + 1) + 2 with wraps >= 0 "
+    "and the clock never past the packet); reallocating the scratch when it is exactly the room (the same "
+    "size again); -2 for -1 as 'no clock yet' (the kernel tests high < 0); what it slices and where the "
+    "packets start when the kernel wrote none (done = 0: no packet is made from them, the slice clamps); "
+    "ends[: done + 1] (zip stops at the done bounds); encoding='evt3' left out (EventPacket's default)": [
+        f"evstream.codecs.packets.xǁPacketEncoderǁencode_many__mutmut_{n}"
+        for n in (102, 130, 162, 166, 169, 174, 176, 199)],
+    "EVT2 encoder: the start value np.int64(1) for 0 before any TIME_HIGH (session 6's, renumbered): frm is "
+    "only read as frm >> 28, 0 for both, and replaced by ((frm >> 28) + 1) << 28 at each wrap": [
+        "evstream.codecs.evt2.x__encode_kernel__mutmut_16"],
     "EventPacket CDR layout: pad1 - 8 for pad1 + 8 moves the offset by 16, a multiple of 8, so pad2 and pad3 "
     "(the offset mod 8 and mod 4) are the same": ["evstream.codecs.event_packet.x__layout__mutmut_26"],
 

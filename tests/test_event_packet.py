@@ -388,6 +388,37 @@ def test_encode_many_takes_what_encode_takes(encoding):
             new().encode_many(*bad, [0, 4, 6])
 
 
+def test_encode_many_from_any_bounds_and_up_to_the_largest_jump():
+    """EVT3 `encode_many` (one kernel call): bounds that start past event 0 (its scratch is still the packets'
+    worst cases, and a later error counts only the events written); a fresh encoder's clock from the first
+    event; a jump of exactly MAX_WRAPS_PER_CALL wraps in the kernel too, one more refused with `encode`'s
+    words after the packets before it."""
+    wrap, top = 1 << 24, evt3.MAX_WRAPS_PER_CALL
+    ev = (np.array([5, 9, 9, 4200, 3 * wrap + 7, 3 * wrap + 8]), np.array([1, 2, 3, 2047, 0, 5]),
+          np.array([3, 3, 3, 0, 2047, 1]), np.array([0, 1, 1, 1, 0, 1]))
+    new = lambda: packets.PacketEncoder(width=2048, height=2048)  # noqa: E731
+    cases = [([1, 3, 4], ev), ([0, 2], tuple(a[4:] for a in ev)),
+             ([0, 1, 2], (np.array([5, top * wrap + 5]), *(a[:2] for a in ev[1:])))]
+    for bounds, (t, x, y, p) in cases:
+        one, many = new(), new()
+        want = [encode_packet(one.encode(t[a:b], x[a:b], y[a:b], p[a:b])) for a, b in zip(bounds[:-1], bounds[1:])]
+        got = many.encode_many(t, x, y, p, bounds)
+        assert [encode_packet(pk) for pk in got] == want and all(isinstance(pk.events, memoryview) for pk in got)
+        rooms = [packet_room(t, a, b, -1 if a == bounds[0] else int(t[a - 1]) >> 12)
+                 for a, b in zip(bounds[:-1], bounds[1:])]
+        assert len(many._scratch) == sum(rooms) and many.seq == one.seq
+        bad = (np.array([t[-1]]), np.array([0]), np.array([2048]), np.array([0]))
+        with pytest.raises(ValueError) as refused:
+            one.encode(*bad)
+        with pytest.raises(ValueError, match=f"^{re.escape(str(refused.value))}$"):
+            many.encode(*bad)
+    t = np.array([5, 6, (top + 1) * wrap + 5])
+    many = new()
+    with pytest.raises(ValueError, match=rf"^encode: timestamps jump from 0 to {(top + 1) * wrap + 5} µs "):
+        many.encode_many(t, *(a[:3] for a in ev[1:]), [0, 2, 3])
+    assert many.seq == 1 and many._time_high == 0
+
+
 def test_faery_decodes_our_packets_identically(tmp_path):
     import faery  # declared (dev) dependency: a broken install fails
     rng = np.random.default_rng(5)
