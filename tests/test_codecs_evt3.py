@@ -617,3 +617,17 @@ def test_encoder_matches_its_reference_word_by_word(ev, cuts):
         want, state = reference_encode(t[a:b], x[a:b], y[a:b], p[a:b], state)
         assert np.frombuffer(enc.encode(t[a:b], x[a:b], y[a:b], p[a:b]), "<u2").tolist() == want
         assert (bool(enc.state[0]), *enc.state[1:].tolist()) == state
+
+
+def test_decode_kernel_runs_until_the_words_or_the_room_run_out():
+    """The kernel alone: words before the first TIME_HIGH do not stop it; it stops before a word once fewer
+    than 12 events' room (one word's most) is left, and says how many words it took."""
+    words = np.array([0x0003, 0x6005, 0x2001, 0x8001, 0x2002, 0x2003], np.uint16)  # ADDR_Y, TIME_LOW, no-time event
+    for cap, want in ((24, (2, 6)), (13, (2, 6)), (12, (1, 5))):
+        dec = evt3.Evt3Decoder()
+        out = np.zeros(cap, np.int64), np.zeros(cap, np.uint16), np.zeros(cap, np.uint16), np.zeros(cap, np.uint8)
+        assert evt3._decode_kernel(words, dec.state, dec._counters, *out) == want
+        n = want[0]
+        assert out[0][:n].tolist() == [4096 + 5] * n and out[1][:n].tolist() == [2, 3][:n]
+        assert out[2][:n].tolist() == [3] * n
+        assert dec.counters["no_time"] == 1
