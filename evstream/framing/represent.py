@@ -969,8 +969,9 @@ class TimeSurface(RepresentationFramer):
                         j = max(k, 0)
                 else:
                     j = i + int(np.searchsorted(chunk.t[i:], fr.t_end, side="left"))
-                if j > i:
-                    self._apply(chunk, cls, use_cls, i, j, fr.counts.reshape(-1) if self._counting else None)
+                if j > i:  # a window of uncounted events only is empty: its counts are the shared read-only zeros
+                    counting = self._counting and fr.n_events > 0
+                    self._apply(chunk, cls, use_cls, i, j, fr.counts.reshape(-1) if counting else None)
                     i = j
             data = self._surface_at(fr.t_end)
             out.append(Representation(fr.t_start, fr.t_end, fr.n_events, fr.counts, self.kind, self.channels, data))
