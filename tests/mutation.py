@@ -424,6 +424,20 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "ends[: done + 1] (zip stops at the done bounds); encoding='evt3' left out (EventPacket's default)": [
         f"evstream.codecs.packets.xǁPacketEncoderǁencode_many__mutmut_{n}"
         for n in (102, 130, 162, 166, 169, 174, 176, 199)],
+    "Evt3Decoder.decode: out arrays of len(rest) + 65 for + 64 events: one more slot of room, and the kernel "
+    "stops by the room it has (the same events, in as many or fewer calls)": [
+        "evstream.codecs.evt3.xǁEvt3Decoderǁdecode__mutmut_15"],
+    "EVT3 skip kernel: the test of the period carried over from the block before made to hold more often, "
+    "never less (`has_high or`, high << 13, + 4096 for + 0xFFF; session 11's 10 is loops << 25): stop = 0 "
+    "then has `_follow` read the block word by word from the state as it stands (before a TIME_HIGH, its "
+    "TIME_LOWs stop nothing), which finds the same first word at or after start_us and counts the same "
+    "wraps; in its TIME_HIGH pass, stopping at an earlier TIME_HIGH (loops << 25, payload << 13, + 4096) "
+    "likewise: `_restore` and `_follow` then go word by word from there": [
+        f"evstream.codecs.evt3.x__skip_kernel__mutmut_{n}" for n in (6, 12, 13, 42, 44, 45)],
+    "EVT3 skip kernel: payload <= high for < in the wrap test: a TIME_HIGH equal to the last one drops by 0, "
+    "never the 4080 a wrap needs (as the decoder's 204)": ["evstream.codecs.evt3.x__skip_kernel__mutmut_31"],
+    "_restore: need_low / need_y = None for False once found: as falsy": [
+        f"evstream.codecs.evt3.x__restore__mutmut_{n}" for n in (29, 36)],
     "EVT2 encoder: the start value np.int64(1) for 0 before any TIME_HIGH (session 6's, renumbered): frm is "
     "only read as frm >> 28, 0 for both, and replaced by ((frm >> 28) + 1) << 28 at each wrap": [
         "evstream.codecs.evt2.x__encode_kernel__mutmut_16"],
