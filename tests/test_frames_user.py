@@ -3,12 +3,23 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
+from evstream.sources import native
 
 from evstream.cli import main
+from evstream.events import EventChunk, Geometry
+from evstream.framing.bound import cut
+from evstream.pipeline import build
+from evstream.testing import assert_frames_equal, frames_of, random_bounds, random_stream, split
 
 REC = "recordings/bar.npz"
+EVSTREAM = str(Path(sys.executable).parent / "evstream")
 
 
 def frames_json(capsys, *argv) -> dict:
@@ -27,3 +38,80 @@ def test_time_surface_over_windows_that_hold_only_noise(capsys, window_us):
     fw = frames_json(capsys, REC, "--framer", "fw", "--window-us", window_us)
     keys = ("frames", "mean_events", "variance_events", "empty_frames", "frames_at_end", "events_signal")
     assert {k: surface[k] for k in keys} == {k: fw[k] for k in keys}
+
+
+# -- frames in batches of bounded size (evstream.framing.bound) -------------------------------------------
+CUT_FRAMERS = [
+    {"kind": "fw", "window_us": 20},
+    {"kind": "fn", "n_events": 2},
+    {"kind": "fn", "n_events": 3, "max_window_us": 40},
+    {"kind": "oa", "window_us": 40, "stride_us": 10},
+    {"kind": "adaptive", "window_us": 40, "n_base": 2},
+    {"kind": "timesurface", "window_us": 30},
+    {"kind": "voxel", "window": "oa", "window_us": 40, "stride_us": 20},
+    {"kind": "histogram", "window": "fn", "n_events": 4},
+]
+AT_ONCE = 6  # the budget of the test: six frames
+
+
+def paused_stream(seed: int, pause_us: int = 30_000_000) -> EventChunk:
+    """A labelled random stream, its classes set (the noise is not counted), with a pause in the middle."""
+    s = random_stream(seed, 4000, mean_dt_us=5)
+    t = s.t.copy()
+    t[len(t) // 2:] += pause_us
+    return s.replace(t=t, t_end=None).with_classes(s.label)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("spec", CUT_FRAMERS, ids=lambda s: "-".join(map(str, s.values())))
+def test_cut_hands_a_framer_the_same_frames_a_few_at_a_time(spec, seed):
+    stream = paused_stream(seed)
+    chunks = split(stream, random_bounds(seed, len(stream), max_chunks=4))
+    whole = frames_of(build("framer", spec), chunks)
+    framer = build("framer", spec)
+    budget = AT_ONCE * framer.frame_bytes(stream.geometry.n_pixels)
+    got, most = [], 0
+    for piece in cut(chunks, framer, budget):
+        out = framer.push(piece)
+        most = max(most, len(out))
+        got.extend(out)
+    got.extend(framer.finish())
+    assert_frames_equal(got, whole)
+    assert most <= 2 * AT_ONCE + 1  # fn with a time limit is cut by events and by time: twice
+
+
+def peak_rss_mb(argv: list[str], tmp_path) -> tuple[int, float, str]:
+    """Run a command in a process of its own: its exit code, its peak resident memory (MB), its output."""
+    with open(tmp_path / "out.txt", "w+") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        return proc.returncode, usage.ru_maxrss / 1024, out.read()
+
+
+def test_frames_of_small_windows_take_memory_for_a_batch_not_for_a_chunk(tmp_path):
+    """50 µs windows over bar.npz's 50,000-event chunks were ~2,900 frames of 346x260 at once: 2.1 GB
+    (`--window-us 1` was killed by the kernel at 20 GB). Cut into pieces, a few hundred MB."""
+    code, mb, out = peak_rss_mb([EVSTREAM, "frames", REC, "--framer", "fw", "--window-us", "50"], tmp_path)
+    assert code == 0, out
+    assert "9,999" in out  # the same frames
+    assert mb < 1000, f"peak memory {mb:.0f} MB"
+
+
+def test_time_surfaces_over_a_pause_take_memory_for_a_batch(tmp_path):
+    """A 30 s pause closes 1,000 empty windows at once (max_empty_frames), and a time surface's empty
+    window has arrays of its own: 2.5 GB at 640x480 from one chunk. Crossed in steps, a few hundred MB."""
+    g = Geometry(640, 480)
+    rng = np.random.default_rng(0)
+    n = 2000
+    t = np.sort(rng.integers(0, 20_000, n))
+    t[n // 2:] += 30_000_000
+    rec = tmp_path / "paused.npz"
+    native.save(rec, EventChunk.from_arrays(t, rng.integers(0, g.width, n), rng.integers(0, g.height, n),
+                                            rng.integers(0, 2, n), g))
+    code, mb, out = peak_rss_mb([EVSTREAM, "frames", rec, "--denoise", "none", "--framer", "timesurface",
+                                 "--window-us", "10000", "--json"], tmp_path)
+    assert code == 0, out
+    assert json.loads(out)["results"][0]["frames"] > 0
+    assert mb < 1000, f"peak memory {mb:.0f} MB"

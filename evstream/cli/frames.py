@@ -10,6 +10,7 @@ from pathlib import Path
 from ..batch import GLOB_MAGIC, TaskStop
 from ..events import NoiseClass
 from ..framing import options as framer_options
+from ..framing.bound import Cut
 from ..framing.render import STYLES
 from ..pipeline import build
 from ..safe_write import AtomicFolder, AtomicOutput
@@ -82,7 +83,7 @@ def _frame_with(kind: str, args, staging: Path | None, several: bool, stop: Task
         if stop is not None:
             stop.check()
 
-    stats = pipeline.run(source, sinks, on_batch=on_batch)
+    stats = pipeline.run(Cut(source, pipeline.framer), sinks, on_batch=on_batch)  # frames in bounded batches
     progress.done()
     fstats.duration_us = stats.duration_us
     return {"framer": pipeline.describe()["framer"], **fstats.as_dict(),

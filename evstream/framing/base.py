@@ -68,6 +68,19 @@ class FramerBase:
         if not isinstance(self.all_events, (bool, np.bool_)):
             raise ValueError(f"{self.kind}: all_events must be true or false, got {shown(self.all_events)}")
 
+    def frame_step(self) -> tuple[int | None, int | None]:
+        """The least event time (µs) and the fewest counted events from one frame's end to the next's
+        (None: not bounded that way); `framing.bound.cut` bounds the frames handed on at once by them."""
+        return None, None
+
+    def pause_step_us(self) -> int | None:
+        """The most event time between two empty frames in a pause (None: the least step, `frame_step`)."""
+        return None
+
+    def frame_bytes(self, n_pixels: int) -> int:
+        """The memory one frame of a sensor of `n_pixels` holds: its two count planes."""
+        return 2 * n_pixels * np.dtype(COUNT_DTYPE).itemsize
+
     # -- state --------------------------------------------------------------------------------------
     def _reset(self) -> None:
         self.geometry: Geometry | None = None

@@ -140,6 +140,9 @@ class FixedWindow(FramerBase):
         self.n = 0
         self.counts = None
 
+    def frame_step(self) -> tuple[int | None, int | None]:
+        return self.window_us, None
+
     def push(self, chunk: EventChunk) -> list[Frame]:
         if self.start is None and not len(chunk):
             return []
@@ -217,6 +220,9 @@ class FixedCount(FramerBase):
         self.first_t = 0
         self.last_t = 0
         self.counts = None
+
+    def frame_step(self) -> tuple[int | None, int | None]:
+        return self.max_window_us, self.n_events  # full, or timed out
 
     @property
     def _max_window(self) -> int:

@@ -247,6 +247,9 @@ class OverlapAccumulation(SlidingFramer):
         self._check_common()
         self._reset()
 
+    def frame_step(self) -> tuple[int | None, int | None]:
+        return self.stride_us, None
+
     def _next_start(self, start: int, n: int) -> int:
         return start + self.stride_us
 
@@ -297,6 +300,12 @@ class AdaptiveOverlap(SlidingFramer):
                              f"overlap_max_us ({self.overlap_max_us})")
         self._check_common()
         self._reset()
+
+    def frame_step(self) -> tuple[int | None, int | None]:
+        return self.window_us - self.overlap_max_us, None  # the overlap is at most overlap_max_us
+
+    def pause_step_us(self) -> int | None:
+        return self.window_us  # no events: the overlap falls towards 0
 
     def _reset(self) -> None:
         super()._reset()

@@ -519,6 +519,16 @@ class RepresentationFramer(FramerBase):
             self.inner.follower = self  # it leaves each frame's counts to `_compute`
         self._open: dict[int, _Grid] = {}
 
+    def frame_step(self) -> tuple[int | None, int | None]:
+        return self.inner.frame_step()
+
+    def pause_step_us(self) -> int | None:
+        return self.inner.pause_step_us()
+
+    def frame_bytes(self, n_pixels: int) -> int:
+        """The window's counts and the representation's float32 channels."""
+        return super().frame_bytes(n_pixels) + len(self.channels) * n_pixels * 4
+
     @property
     def channels(self) -> tuple:
         return self.channels_of()
