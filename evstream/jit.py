@@ -315,7 +315,7 @@ def load_aot(index_path: Path) -> dict:
         if changed or index["cpu"] != cpu_id():
             if changed and sys.stderr is not None and sys.stderr.isatty():  # a person at a terminal, after a pull
                 first = os.path.relpath(changed[0], Path(index["package"]).parent)
-                more = f" and {len(changed) - 1} more files" if len(changed) > 1 else ""
+                more = f" and {len(changed) - 1} more file{'s' if len(changed) > 2 else ''}" if len(changed) > 1 else ""
                 print(f"evstream: note: {first}{more} changed since the kernels were compiled ahead of time: numba "
                       "compiles them instead (seconds at first use); `make aot` rebuilds them", file=sys.stderr)
             return {}

@@ -343,3 +343,15 @@ def test_a_module_older_than_the_sources_says_so_on_a_terminal(tmp_path, monkeyp
     name = os.path.relpath(path, Path(index["package"]).parent)
     assert said == (f"evstream: note: {name} changed since the kernels were compiled ahead of time: numba compiles "
                     "them instead (seconds at first use); `make aot` rebuilds them\r\n")
+    for n in (2, 3):  # the others counted, in agreement ('and 1 more files' before)
+        for other in list(index["sources"])[1:n]:
+            index["sources"][other][1] += 1
+        index_path.write_text(json.dumps(index))
+        terminal, tty_name = os.openpty()
+        with open(tty_name, "w", closefd=True) as tty:
+            monkeypatch.setattr(sys, "stderr", tty)
+            assert jit.load_aot(index_path) == {}
+        said = os.read(terminal, 4096).decode()
+        os.close(terminal)
+        more = f"and {n - 1} more file{'s' if n > 2 else ''} changed since"
+        assert said.startswith("evstream: note: ") and more in said.splitlines()[0], said
