@@ -115,3 +115,12 @@ def test_time_surfaces_over_a_pause_take_memory_for_a_batch(tmp_path):
     assert code == 0, out
     assert json.loads(out)["results"][0]["frames"] > 0
     assert mb < 1000, f"peak memory {mb:.0f} MB"
+
+
+def test_archive_frames_take_the_window_flags_of_the_fw_frames_they_are(tmp_path, capsys):
+    """`--frames` alone writes fw frames; `--frames --window-us 5000` was refused ('--window-us does not
+    apply to --framer none'), though the help says --framer picks and fw is what it picks."""
+    code = main(["archive", REC, str(tmp_path / "bar.mcap"), "--frames", "--window-us", "5000"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "100 frames" in out  # 0.5 s of bar.npz in 5 ms windows (10 ms: 50)

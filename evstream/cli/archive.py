@@ -77,6 +77,8 @@ def archive_one(args, stop: StopOnSignal | TaskStop | None = None):
     not_the_input(args.source, args.out, "")  # `archive A.mcap A.mcap` emptied A.mcap and exited 0
     source = open_recording(args.source, args, FAST_CHUNK_EVENTS if args.speed == 0 else None)
     pipeline = pipeline_from_args(args, source)
+    if args.frames and (args.framer or "none") == "none" and pipeline.framer is None:
+        args.framer = "fw"  # what --frames alone writes: --window-us and the like apply to it
     attach_framer(pipeline, args)
     created = create_folder(Path(args.out).parent)
     progress = Progress(source, quiet=args.quiet)
