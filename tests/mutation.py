@@ -334,11 +334,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "SlidingFramer._reset's frame end, counts and buffers (None, '', float64 for int64): _reset leaves no frame "
     "open (start None), and push calls _first, which sets all of them, before any is read": [
         f"evstream.framing.overlap.xǁSlidingFramerǁ_reset__mutmut_{n}" for n in (2, 4, 9, 11, 15)],
-    "SlidingFramer.push makes room when it need not (tail + n + i for tail + n - i): _make_room compacts (the "
-    "same events, moved to the front) and grows only by its own check; the flat indices' buffer grown longer "
-    "than the times' (size + live): push makes room by the times' length, so the extra is never written": [
-        "evstream.framing.overlap.xǁSlidingFramerǁpush__mutmut_16",
-        "evstream.framing.overlap.xǁSlidingFramerǁ_make_room__mutmut_34"],
+    "the flat indices' buffer grown longer than the times' (size + live): push makes room by the times' "
+    "length, so the extra is never written (session 12: push's mutant 16 named here was of its code before "
+    "a7955fa, and is now another one, killed)": ["evstream.framing.overlap.xǁSlidingFramerǁ_make_room__mutmut_34"],
     "SlidingFramer._skip_empty is never called: OA and adaptive each override it (no test reaches it)": [
         f"evstream.framing.overlap.xǁSlidingFramerǁ_skip_empty__mutmut_{n}" for n in range(1, 10)],
     "adaptive's jump past empty frames not taken when the frame ends exactly on the watermark w: the frame "
@@ -453,6 +451,29 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         *(f"evstream.framing.represent.xǁVoxelGridǁ_add_flat__mutmut_{n}" for n in (1, *range(22, 36)))],
     "the time surface's counted positions over fn windows (`where`) computed again for each frame: the same "
     "array": ["evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_27"],
+    "state_nbytes of an object without a __dict__: None for {} holds no array either (0 bytes)":
+        ["evstream.testing.x_state_nbytes__mutmut_49"],
+    "voxel kernels' lazy zeroing asked one bin sooner ((lo + 2)·hw >= ready): `ready` is a whole number of "
+    "bins (m·hw), and in the one case added, lo + 2 = m, _zero_bins(out, m·hw, m·hw) zeroes nothing and "
+    "returns m·hw": ["evstream.framing.represent.x_voxel_kernel__mutmut_27",
+                     "evstream.framing.represent.x_voxel_count_kernel__mutmut_31"],
+    "the representations' event buffer grown to another size that holds the events (2·(live + k) alone, "
+    "3·len, 3·(live + k)): the same events kept": [
+        f"evstream.framing.represent.xǁ_EventBufferǁappend__mutmut_{n}" for n in (24, 25, 27)],
+    "a window's array seen flat by reshape(-2): NumPy infers the size for any negative one, as for -1; a "
+    "grid's `ready` None once done(): a done grid is handed on in its Representation, never written again": [
+        "evstream.framing.represent.xǁ_Gridǁ__init____mutmut_4", "evstream.framing.represent.xǁ_Gridǁdone__mutmut_3"],
+    "SlidingFramer._make_room grows the buffer sooner (3·(live + more), or >=) or to another size that still "
+    "takes `more` (3·len, 3·(live + more), or 2·(live + more) alone); or to 2·len where that is too small, "
+    "and push, the kernel again lacking room, calls it again until it fits: the same events kept, the same "
+    "frames": [f"evstream.framing.overlap.xǁSlidingFramerǁ_make_room__mutmut_{n}" for n in (8, 10, 16, 17, 18, 19, 20)],
+    "the overlap buffer's times as float64 once grown (np.zeros' default): every time below 2^53 µs is exact, "
+    "and each use (a binary search for the next frame's start, a time surface's newest time, a voxel bin) "
+    "computes the same values": [f"evstream.framing.overlap.xǁSlidingFramerǁ_make_room__mutmut_{n}" for n in (24, 26)],
+    "SlidingFramer._close: searchsorted's side is 'left' by default; an empty frame handed the counts as well "
+    "(_frame makes the empty frame whenever n is 0, whatever it is given); the follower handed no buffered "
+    "event (j == tail) for the next window: an empty array, zero when emitted, dropped by _forget when passed": [
+        f"evstream.framing.overlap.xǁSlidingFramerǁ_close__mutmut_{n}" for n in (15, 28, 43)],
 
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}

@@ -457,6 +457,21 @@ def test_overlap_buffer_grows_while_it_holds_events_then_fills_again():
     assert_frames_equal(frames, frames_of(OverlapAccumulation(**oa), [s]))
 
 
+def test_overlap_buffer_starts_again_at_its_front_when_its_tail_reaches_its_end():
+    """Bursts of 1000 events at one time, 5 ms apart, through OA 3 ms / 1 ms: a next frame holds each burst, so
+    it is buffered, and dropped once the frames pass it; the buffer's tail creeps to its end holding nothing,
+    until a burst finds no room there and the buffer starts again at its front (its first slot holding the
+    burst's first event, which the next frames need)."""
+    rng = np.random.default_rng(3)
+    t = np.repeat(np.arange(40, dtype=np.int64) * 5000 + 2500, 1000)
+    s = EventChunk.from_arrays(t, rng.integers(0, G.width, len(t)), rng.integers(0, G.height, len(t)),
+                               rng.integers(0, 2, len(t)), G)
+    for chunks in ([s], split(s, list(range(0, len(s), 1000)) + [len(s)])):
+        frames = frames_of(OverlapAccumulation(window_us=3000, stride_us=1000), chunks)
+        assert sum(fr.n_events for fr in frames) > 40 * 1000
+        assert_frames_equal(frames, ref_oa(s, window_us=3000, stride_us=1000))
+
+
 @pytest.mark.parametrize("use_cls", [False, True])
 def test_fn_kernels_give_an_empty_frame_no_deadline(use_cls):
     """A frame holding no event yet has no deadline: the first and last times handed in are still those

@@ -247,7 +247,8 @@ def test_time_surface_remembers_events_of_earlier_windows():
 
 
 def test_a_window_parameter_the_window_does_not_have_is_refused():
-    with pytest.raises(ValueError, match="n_events does not apply to window 'fw'"):
+    with pytest.raises(ValueError, match=r"^voxel: n_events does not apply to window 'fw' \(its parameters: "
+                                         r"max_empty_frames, window_us\)$"):
         build("framer", {"kind": "voxel", "n_events": 10})
     with pytest.raises(ValueError, match="window must be one of"):
         build("framer", {"kind": "histogram", "window": "hourly"})
@@ -329,6 +330,24 @@ def test_buffer_kernels_match_plain_python(seed, n, bins):
     ts = np.zeros(2 * hw, np.float32)
     timestamp_kernel(t, f, t_start, t_end, ts)
     np.testing.assert_allclose(ts, timestamp_plain(t, f, t_start, t_end, hw), rtol=1e-6)
+
+
+@pytest.mark.parametrize("span_us", [1, 2, 3])  # t_end − t_start: the events at one time, over 1 µs, over 2 µs
+def test_buffer_voxel_kernels_over_the_shortest_windows(span_us):
+    """The random windows above span 3 µs or more: here 1 µs (t* = 0 for every event), 2 µs (t_end − 1 −
+    t_start = 1: the window's two times are its first and last bins) and 3 µs, against the definition."""
+    hw, bins = 4, 3
+    t = np.array([100, 100, 100 + span_us - 1, 100 + span_us - 1], np.int64)
+    f = np.array([0, 5, 2, 7], np.uint32)
+    ref = voxel_plain(t, f % hw, f >= hw, 100, 100 + span_us, bins, hw)
+    vox = lazily(lambda out, ready: voxel_kernel(t, f, 100, 100 + span_us, bins, hw, out, ready), bins * hw)
+    np.testing.assert_allclose(vox, ref, atol=1e-6)
+    counts = np.zeros(2 * hw, np.uint16)
+    both = lazily(lambda out, ready: voxel_count_kernel(t, f, 100, 100 + span_us, bins, hw, counts.copy(), out, ready),
+                  bins * hw)
+    np.testing.assert_allclose(both, ref, atol=1e-6)
+    if span_us == 2:
+        assert ref[2 * hw + 2] == -1 and ref[2 * hw + 3] == 1 and ref[2] == 0  # the last time in the last bin
 
 
 @given(st.integers(0, 2**32 - 1), st.integers(0, 300), st.integers(1, 6), st.booleans())
