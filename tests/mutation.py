@@ -463,6 +463,18 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "a window's array seen flat by reshape(-2): NumPy infers the size for any negative one, as for -1; a "
     "grid's `ready` None once done(): a done grid is handed on in its Representation, never written again": [
         "evstream.framing.represent.xǁ_Gridǁ__init____mutmut_4", "evstream.framing.represent.xǁ_Gridǁdone__mutmut_3"],
+    "the representations' event buffer's flat indices as int64 where uint32 holds them (the same values), "
+    "or uint32 for 2·hw = 2^32 too (its largest index, 2^32 − 1, still fits)": [
+        f"evstream.framing.represent.xǁRepresentationFramerǁ_geometry__mutmut_{n}" for n in (7, 11, 12)],
+    "RepresentationFramer._represent: a, b None for 0 where the representation needs no events (histogram, count: "
+    "their _compute reads neither)": ["evstream.framing.represent.xǁRepresentationFramerǁ_represent__mutmut_27"],
+    "RepresentationFramer._forget's `start is None` never holds once there is a buffer: it is made at the first "
+    "chunk with events, which also gives the windowing framer its start": [
+        "evstream.framing.represent.xǁRepresentationFramerǁ_forget__mutmut_20"],
+    "VoxelGrid._table never giving a table (`window != 'fn'`: fn windows never ask for one): every window then "
+    "goes through the arithmetic kernels, whose grids the table kernels' are to the bit "
+    "(test_voxel_table_kernels_are_the_arithmetic_kernels_to_the_bit); only slower":
+        ["evstream.framing.represent.xǁVoxelGridǁ_table__mutmut_3"],
     "SlidingFramer._make_room grows the buffer sooner (3·(live + more), or >=) or to another size that still "
     "takes `more` (3·len, 3·(live + more), or 2·(live + more) alone); or to 2·len where that is too small, "
     "and push, the kernel again lacking room, calls it again until it fits: the same events kept, the same "

@@ -207,6 +207,18 @@ def test_fixed_count_windows_over_chunks_larger_than_the_buffer(kind):
             np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
 
 
+@pytest.mark.parametrize("window", ["fw", "oa", "adaptive"])
+def test_voxel_grid_of_windows_longer_than_its_table_before_time_zero(window):
+    """Windows over VOXEL_TABLE_MAX_US (no table: the events' bins computed one by one), at negative times."""
+    s = random_stream(15, 1500, Geometry(9, 7), mean_dt_us=400)
+    stream = s.replace(t=s.t - 10**6, cls=s.label)
+    more = {"window_us": 100_000, **({"stride_us": 40_000} if window == "oa" else {})}
+    frames = frames_of(make("voxel", window, **more)(), [stream])
+    assert len(frames) > 3 and frames[0].t_start < frames[0].t_end < 0
+    for fr, ref in zip(frames, reference("voxel", stream, frames, window), strict=True):
+        np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
 @pytest.mark.parametrize("window", sorted(WINDOWS))
 def test_voxel_grids_are_whole_though_not_zero_filled(window, monkeypatch):
     """A voxel grid is zeroed bin by bin as its events reach them, and the rest when its window closes:
