@@ -471,10 +471,15 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "RepresentationFramer._forget's `start is None` never holds once there is a buffer: it is made at the first "
     "chunk with events, which also gives the windowing framer its start": [
         "evstream.framing.represent.xǁRepresentationFramerǁ_forget__mutmut_20"],
-    "VoxelGrid._table never giving a table (`window != 'fn'`: fn windows never ask for one): every window then "
-    "goes through the arithmetic kernels, whose grids the table kernels' are to the bit "
+    "VoxelGrid._table giving no table where it gave one (never, `window != 'fn'`; at a span of exactly "
+    "VOXEL_TABLE_MAX_US; at 2 bins) or the same (fn windows, which never ask: 'XXfnXX', 'FN'): those windows go "
+    "through the arithmetic kernels, whose grids the table kernels' are to the bit "
     "(test_voxel_table_kernels_are_the_arithmetic_kernels_to_the_bit); only slower":
-        ["evstream.framing.represent.xǁVoxelGridǁ_table__mutmut_3"],
+        [f"evstream.framing.represent.xǁVoxelGridǁ_table__mutmut_{n}" for n in (3, 4, 5, 6, 7)],
+    "VoxelGrid._table's weights: w_lo 3·span long (voxel_table fills len(lo_at) // 2 µs, the rest never read); "
+    "w_hi as float64 (each weight a float32 product stored exactly, and a float32 grid element plus a float64 "
+    "holding a float32 rounds once, to the float32 sum)": [
+        f"evstream.framing.represent.xǁVoxelGridǁ_table__mutmut_{n}" for n in (23, 27)],
     "SlidingFramer._make_room grows the buffer sooner (3·(live + more), or >=) or to another size that still "
     "takes `more` (3·len, 3·(live + more), or 2·(live + more) alone); or to 2·len where that is too small, "
     "and push, the kernel again lacking room, calls it again until it fits: the same events kept, the same "

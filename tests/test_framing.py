@@ -457,6 +457,31 @@ def test_overlap_buffer_grows_while_it_holds_events_then_fills_again():
     assert_frames_equal(frames, frames_of(OverlapAccumulation(**oa), [s]))
 
 
+def test_frame_step_and_frame_bytes_hold_for_the_frames_made():
+    """What `framing.bound.cut` relies on: `frame_step` the least event time (fw and oa: the exact step) or the
+    fewest counted events (fn: a full frame's) from one frame's end to the next's, `pause_step_us` the step
+    between empty frames in a pause, `frame_bytes` what one frame holds (its two count planes)."""
+    a, b = random_stream(3, 1500, G, mean_dt_us=30), random_stream(4, 1500, G, mean_dt_us=30)
+    s = concat([a, b.replace(t=b.t + int(a.t[-1]) + 20_000)])  # a pause of ~20 windows
+    for framer in (FixedWindow(window_us=1000), FixedCount(n_events=50, max_window_us=800),
+                   OverlapAccumulation(window_us=1000, stride_us=400), AdaptiveOverlap(window_us=1000, n_base=50)):
+        frames = frames_of(framer, [s])
+        step_us, step_n = framer.frame_step()
+        steps = np.diff([fr.t_end for fr in frames])
+        if isinstance(framer, FixedCount):
+            assert (step_us, step_n) == (800, 50) and max(fr.n_events for fr in frames) == step_n
+            assert max(fr.t_end - fr.t_start for fr in frames) == step_us and framer.pause_step_us() is None
+        else:
+            assert step_n is None and steps.min() >= step_us
+            if isinstance(framer, AdaptiveOverlap):  # O_max = window / 2 by default
+                assert step_us == 500 and framer.pause_step_us() == 1000
+                assert [int(d) for d, e, f in zip(steps, frames, frames[1:]) if not e.n_events and not f.n_events][
+                    :5] == [1000] * 5
+            else:
+                assert steps.max() == step_us and framer.pause_step_us() is None
+        assert all(framer.frame_bytes(G.n_pixels) == fr.counts.nbytes for fr in frames)
+
+
 def test_overlap_buffer_starts_again_at_its_front_when_its_tail_reaches_its_end():
     """Bursts of 1000 events at one time, 5 ms apart, through OA 3 ms / 1 ms: a next frame holds each burst, so
     it is buffered, and dropped once the frames pass it; the buffer's tail creeps to its end holding nothing,

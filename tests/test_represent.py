@@ -131,9 +131,14 @@ def labelled(seed, n):
 @pytest.mark.parametrize("kind", REPRESENTATIONS)
 def test_matches_the_definition(kind, window, all_events):
     stream = labelled(3, 1500)
-    frames = frames_of(make(kind, window, all_events=all_events)(), [stream])
+    framer = make(kind, window, all_events=all_events)()
+    frames = frames_of(framer, [stream])
     assert len(frames) > 5
-    plain = frames_of(build("framer", {"kind": window, **WINDOWS[window], "all_events": all_events}), [stream])
+    inner = build("framer", {"kind": window, **WINDOWS[window], "all_events": all_events})
+    plain = frames_of(inner, [stream])
+    # what framing.bound.cut reads: the windows' steps, and the bytes of a frame (counts and channels)
+    assert (framer.frame_step(), framer.pause_step_us()) == (inner.frame_step(), inner.pause_step_us())
+    assert all(framer.frame_bytes(stream.geometry.n_pixels) == fr.counts.nbytes + fr.data.nbytes for fr in frames)
     assert [(f.t_start, f.t_end, f.n_events) for f in frames] == [(f.t_start, f.t_end, f.n_events) for f in plain]
     assert all(np.array_equal(f.counts, g.counts) for f, g in zip(frames, plain))  # some counted by the follower
     for fr, ref in zip(frames, reference(kind, stream, frames, window, all_events=all_events)):
@@ -266,6 +271,8 @@ def test_a_window_parameter_the_window_does_not_have_is_refused():
         build("framer", {"kind": "histogram", "window": "hourly"})
     with pytest.raises(ValueError, match="tau_us"):
         build("framer", {"kind": "timesurface", "tau_us": 0})
+    for tau in (1, 0.5, 2.0**40):  # the range is (0, 2^40] µs: a τ at or under 1 µs is taken too
+        assert build("framer", {"kind": "timesurface", "tau_us": tau}).tau_us == tau
     with pytest.raises(ValueError, match="bins"):
         build("framer", {"kind": "voxel", "bins": 0})
     with pytest.raises(ValueError, match="stride_us"):
