@@ -30,7 +30,7 @@ import weakref
 from pathlib import Path
 
 __all__ = ["AtomicFolder", "AtomicOutput", "OutputIsInput", "being_read", "cannot_write", "check_not_input",
-           "is_no_space", "is_special", "no_space_error", "numbered_name", "partial_name", "reading"]
+           "is_no_space", "is_special", "no_space_error", "numbered_name", "partial_name", "probe_writable", "reading"]
 
 _NO_SPACE = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EFBIG}
 _MAX_PART_NAMES = 1000
@@ -105,6 +105,21 @@ def cannot_write(target, e: OSError) -> OSError:
     error = OSError(f"{os.fspath(target)}: cannot write there: {e.strerror or e}")
     error.errno = e.errno
     return error
+
+
+def probe_writable(target, flag: str = "") -> None:
+    """Before minutes of work: `target` can be created (its folder made if need be), else one line
+    ("FLAG TARGET: cannot write there: REASON"); only a probe, no file left behind."""
+    target = Path(target)
+    try:
+        if not target.parent.exists():
+            target.parent.mkdir(parents=True)
+        existed = target.exists()
+        open(target, "a").close()
+        if not existed:
+            target.unlink()
+    except OSError as e:
+        raise OSError(f"{flag}{os.fspath(target)}: cannot write there: {e.strerror or e}") from None
 
 
 def is_special(path: Path) -> bool:

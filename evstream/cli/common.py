@@ -70,6 +70,12 @@ def not_the_input(source: str, out, flag: str, what: str = "the input recording"
         raise UsageError(str(e)) from None
 
 
+def native_output(out: str, command: str) -> None:
+    """A command that writes a native .npz (labels and all) refuses another name: a zip under a .raw name."""
+    if Path(out).suffix.lower() != ".npz":
+        raise UsageError(f"{out}: {command} writes a native .npz (with its labels); then `evstream convert` it")
+
+
 def check_numbers(args, *, at_least_zero=(), positive=()) -> None:
     """Flag values that cannot work are usage errors (exit 2), named as typed: `--speed -1: must be >= 0`.
     NaN and infinity are refused too (`--speed nan` used to replay as fast as possible)."""

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .. import api, batch, noise, synth
 from ..events import EventError, Geometry
-from ..safe_write import AtomicOutput
+from ..safe_write import AtomicOutput, probe_writable
 from .batch import _warm, add_batch_flags, interrupted, run_tasks, table
 from .common import (
     Progress,
@@ -19,6 +19,7 @@ from .common import (
     counted,
     create_folder,
     folder_note,
+    native_output,
     not_the_input,
 )
 
@@ -28,6 +29,8 @@ DEFAULT_NOISE_RATIO = 0.5  # what `make recordings` and the README use
 def cmd_synth(args) -> int:
     from evstream.sources import native
 
+    check_numbers(args, positive=("duration_ms",), at_least_zero=("seed", "noise_ratio", "ba_rate_hz", "hot_share"))
+    native_output(args.out, "synth")  # `synth bar out/s.raw` wrote a native .npz under that name
     geometry = Geometry(args.width, args.height)
     if args.noise_ratio is None and args.ba_rate_hz is None:
         args.noise_ratio = DEFAULT_NOISE_RATIO
@@ -37,13 +40,11 @@ def cmd_synth(args) -> int:
                              on_progress=lambda done, total: progress.update(100 * done / total, 100, percent=True))
     finally:
         progress.done()
-    meta = {"scene": args.scene, "seed": args.seed, "duration_ms": args.duration_ms,
-            "generator": "evstream synth"}
+    meta = {"scene": args.scene, "seed": args.seed, "duration_ms": args.duration_ms, "generator": "evstream synth"}
     if args.noise_ratio or args.ba_rate_hz is not None:
         spec = noise.NoiseSpec(noise_ratio=args.noise_ratio, ba_rate_hz=args.ba_rate_hz,
                                hot_pixels=args.hot_pixels, hot_share=args.hot_share)
-        events = noise.inject(events, spec, seed=args.seed + 1, t_start_us=0,
-                              t_stop_us=int(args.duration_ms * 1000))
+        events = noise.inject(events, spec, seed=args.seed + 1, t_start_us=0, t_stop_us=int(args.duration_ms * 1000))
         meta["noise"] = {k: v for k, v in vars(spec).items()}
     created = create_folder(Path(args.out).parent)
     with AtomicOutput(args.out) as part:  # never in place: an interrupted synth leaves the old file
@@ -67,15 +68,7 @@ def cmd_eval(args) -> int:
         if out:
             for path in inputs:  # `eval REC --json REC` wrote the rows over the recording
                 not_the_input(path, out, f"{flag} ")
-            try:
-                if not Path(out).parent.exists():
-                    Path(out).parent.mkdir(parents=True)
-                existed = Path(out).exists()
-                open(out, "a").close()
-                if not existed:  # only a probe: no empty file left behind if the run fails
-                    Path(out).unlink()
-            except OSError as e:
-                raise OSError(f"{flag} {out}: cannot write there: {e.strerror or e}") from None
+            probe_writable(out, f"{flag} ")
     if args.model and (args.out or args.no_reference):
         raise UsageError("--model goes with eval in one process on labelled noise (not with --out or --no-reference)")
     if args.out:
@@ -250,8 +243,7 @@ def read_recordings(paths, min_duration_s: float, command: str, strict: bool | s
             continue
         duration_s = events.duration_us * 1e-6
         if duration_s < min_duration_s:
-            print(f"{command}: skipping {path}: {duration_s:.3f} s is shorter than --min-duration-s",
-                  file=sys.stderr)
+            print(f"{command}: skipping {path}: {duration_s:.3f} s is shorter than --min-duration-s", file=sys.stderr)
             continue
         signature = (len(events), int(events.t[0]), int(events.t[-1]))
         if signature in seen:
