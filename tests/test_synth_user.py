@@ -1,4 +1,4 @@
-"""`evstream synth` as a user types it: what it writes, and flags that cannot work."""
+"""`evstream synth` and `evstream eval` as a user types them: what synth writes, and flags that cannot work."""
 
 from __future__ import annotations
 
@@ -30,3 +30,11 @@ def test_synth_flag_out_of_range_is_a_usage_error_naming_the_flag(tmp_path, caps
     assert code == 2
     assert err.strip().splitlines() == [err.strip()] and f"{flag} " in err
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("flag, values", [("--ratios", ["0.5", "-1"]), ("--rates-hz", ["-3"]), ("--ratios", ["nan"])])
+def test_eval_noise_levels_out_of_range_are_usage_errors_naming_the_flag(capsys, flag, values):
+    """Were exit 1 naming the parameter inside (`noise_ratio must be >= 0, got -1.0`), after reading."""
+    code, out, err = run(capsys, "eval", "recordings/bar.npz", "--methods", "stcf", "--seeds", "1", flag, *values)
+    assert code == 2 and out == ""
+    assert err.strip().splitlines() == [err.strip()] and f"{flag} " in err

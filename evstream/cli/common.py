@@ -78,12 +78,13 @@ def native_output(out: str, command: str) -> None:
 
 def check_numbers(args, *, at_least_zero=(), positive=()) -> None:
     """Flag values that cannot work are usage errors (exit 2), named as typed: `--speed -1: must be >= 0`.
-    NaN and infinity are refused too (`--speed nan` used to replay as fast as possible)."""
+    NaN and infinity are refused too (`--speed nan` used to replay as fast as possible); a list flag, each value."""
     for names, ok, rule in ((at_least_zero, lambda v: v >= 0, ">= 0"), (positive, lambda v: v > 0, "positive")):
         for name in names:
-            v = getattr(args, name, None)
-            if v is not None and not (math.isfinite(v) and ok(v)):
-                raise UsageError(f"--{name.replace('_', '-')} {v:g}: must be {rule} (a finite number)")
+            value = getattr(args, name, None)
+            for v in value if isinstance(value, list) else [value]:
+                if v is not None and not (math.isfinite(v) and ok(v)):
+                    raise UsageError(f"--{name.replace('_', '-')} {v:g}: must be {rule} (a finite number)")
 
 
 def add_source_flags(p) -> None:

@@ -58,7 +58,7 @@ def cmd_synth(args) -> int:
 def cmd_eval(args) -> int:
     from .. import evaluation
 
-    check_numbers(args, positive=("seeds",))  # --seeds 0 printed empty tables and exited 0
+    check_numbers(args, positive=("seeds",), at_least_zero=("ratios", "rates_hz"))  # --seeds 0: empty tables, exit 0
     if args.real and not Path(args.real).is_dir():  # was Python's "[Errno 20] Not a directory: 'X'"
         raise UsageError(f"--real {args.real}: {'not a folder' if Path(args.real).exists() else 'no such folder'}")
     if args.roc:  # before minutes of work: it was "no ROC plot" at the end, exit 0
