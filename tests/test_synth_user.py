@@ -38,3 +38,19 @@ def test_eval_noise_levels_out_of_range_are_usage_errors_naming_the_flag(capsys,
     code, out, err = run(capsys, "eval", "recordings/bar.npz", "--methods", "stcf", "--seeds", "1", flag, *values)
     assert code == 2 and out == ""
     assert err.strip().splitlines() == [err.strip()] and f"{flag} " in err
+
+
+@pytest.mark.parametrize("argv", [["convert", "recordings/bar.npz", "{out}/x.raw"],
+                                  ["archive", "recordings/bar.npz", "{out}/sub/x.mcap"],
+                                  ["replay", "recordings/bar.npz", "--save", "{out}/x.rrd"],
+                                  ["synth", "bar", "{out}/x.npz", "--duration-ms", "20"]])
+def test_an_output_in_a_folder_that_is_a_file_says_so_in_one_line(tmp_path, capsys, argv):
+    """An output's folder that is a regular file (a typo, a name reused) was Python's '[Errno 17] File
+    exists: ...'; the file stays as it was."""
+    a_file = tmp_path / "notes"
+    a_file.write_text("mine")
+    code, out, err = run(capsys, *[a.format(out=a_file) for a in argv])
+    assert code == 1
+    assert err.strip().splitlines() == [err.strip()]
+    assert err.startswith(f"evstream: error: {a_file}: is a file, not a folder")
+    assert "Errno" not in err and a_file.read_text() == "mine"

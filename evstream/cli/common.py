@@ -236,7 +236,11 @@ def create_folder(folder) -> str:
     """Make `folder` (and its parents) if missing; returns the topmost folder it made, or '' (a summary
     line says what it created: `folder_note`)."""
     missing = first_missing(folder)
-    Path(folder).mkdir(parents=True, exist_ok=True)
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):  # was "[Errno 17] File exists: 'a_file'"
+        raise OSError(f"{next(f for f in (Path(folder), *Path(folder).parents) if f.exists())}: is a file, "
+                      f"not a folder (the output's folder is {folder})") from None
     return missing
 
 
