@@ -432,10 +432,11 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "wraps; in its TIME_HIGH pass, stopping at an earlier TIME_HIGH (loops << 25, payload << 13, + 4096) "
     "likewise: `_restore` and `_follow` then go word by word from there": [
         f"evstream.codecs.evt3.x__skip_kernel__mutmut_{n}" for n in (6, 12, 13, 42, 44, 45)],
-    "EVT3 skip kernel: payload <= high for < in the wrap test: a TIME_HIGH equal to the last one drops by 0, "
-    "never the 4080 a wrap needs (as the decoder's 204)": ["evstream.codecs.evt3.x__skip_kernel__mutmut_31"],
-    "_restore: need_low / need_y = None for False once found: as falsy": [
-        f"evstream.codecs.evt3.x__restore__mutmut_{n}" for n in (29, 36)],
+    "EVT3 skip kernel and _follow: payload <= high for < in the wrap test: a TIME_HIGH equal to the last one "
+    "drops by 0, never the 4080 a wrap needs (as the decoder's 204)": [
+        "evstream.codecs.evt3.x__skip_kernel__mutmut_31", "evstream.codecs.evt3.x__follow__mutmut_30"],
+    "_restore: need_low / need_y / need_base = None for False once found: as falsy": [
+        f"evstream.codecs.evt3.x__restore__mutmut_{n}" for n in (29, 36, 57)],
     "EVT2 encoder: the start value np.int64(1) for 0 before any TIME_HIGH (session 6's, renumbered): frm is "
     "only read as frm >> 28, 0 for both, and replaced by ((frm >> 28) + 1) << 28 at each wrap": [
         "evstream.codecs.evt2.x__encode_kernel__mutmut_16"],
