@@ -437,6 +437,19 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.codecs.evt3.x__skip_kernel__mutmut_31", "evstream.codecs.evt3.x__follow__mutmut_30"],
     "_restore: need_low / need_y / need_base = None for False once found: as falsy": [
         f"evstream.codecs.evt3.x__restore__mutmut_{n}" for n in (29, 36, 57)],
+    "EVT3 encoder kernel: the TIME_HIGH steps from cur_high even when not started ('or True'): state[1] (the "
+    "time-high) is 0 whenever state[0] (started) is 0: a new Evt3Encoder's state, and every restart "
+    "(evt3_sensor_clock, the packets kernel) sets started; cur_low = -2 for -1 after a TIME_HIGH: as -1 "
+    "(and session 11's None), no time low 0..4095, so the TIME_LOW word follows": [
+        f"evstream.codecs.evt3.x__encode_kernel__mutmut_{n}" for n in (54, 60)],
+    "EVT3 encoder kernel: the started flag it leaves, 1 whatever (or True, else 1) or 2 for 1: it is called with "
+    "one event or more (Evt3Encoder returns before it for none, the packets kernel for an empty packet), so "
+    "started is true at its end, and the flag is only tested != 0": [
+        f"evstream.codecs.evt3.x__encode_kernel__mutmut_{n}" for n in (247, 248, 249)],
+    "EVT3 packets kernel: a state of 5 slots (the encoder kernel reads 4); `h > t0 << 12` for `t0 >> 12` (the "
+    "clock past the first event hardly ever refused here): the encoder kernel it calls refuses the same "
+    "packet, its check's last time being h << 12 > t0, and the kernel returns j as before": [
+        f"evstream.codecs.evt3.x__encode_packets_kernel__mutmut_{n}" for n in (11, 32)],
     "EVT2 encoder: the start value np.int64(1) for 0 before any TIME_HIGH (session 6's, renumbered): frm is "
     "only read as frm >> 28, 0 for both, and replaced by ((frm >> 28) + 1) << 28 at each wrap": [
         "evstream.codecs.evt2.x__encode_kernel__mutmut_16"],

@@ -389,6 +389,8 @@ def test_encoder_time_high_steps_stay_under_half_the_range_on_random_streams(ev)
     ([5, 6, 7], [0, 1, 0], [0x2, 0x2, 0x2]),  # a vector is one polarity
     ([5, 3, 7], [1] * 3, [0x2, 0x2, 0x2]),  # x must increase
     ([5, 6, 6], [1] * 3, [0x2, 0x2, 0x2]),  # strictly: three events of two pixels do not pay for a vector
+    ([0, 1, 12], [1] * 3, [0x2, 0x2, 0x2]),  # the third 12 past the first: not within one vector word
+    ([0, 1, 11], [1] * 3, [0x3, 0x4]),  # the third 11 past it: the word's last pixel
 ])
 def test_encoder_puts_runs_of_three_increasing_pixels_in_vectors_and_nothing_else(x, p, kinds):
     """Runs of >= 3 events with the same t, y, p and strictly increasing x within 12 pixels go into vector
@@ -604,11 +606,16 @@ def test_time_high_steps_match_their_reference(frm, to):
           np.ones(6, np.uint8)), [])
 @example((np.array([4095 * 4096 + 9, *[WRAP] * 5]), np.array([5, 0, 1, 2, 12, 36], np.uint16), np.full(6, 5, np.uint16),
           np.ones(6, np.uint8)), [3])
+@example((np.array([5, 9, 9, 4096 + 3]), np.array([1, 2, 3, 4], np.uint16), np.full(4, 5, np.uint16),
+          np.ones(4, np.uint8)), [1, 2])
+@example((np.full(3, 7), np.array([0, 1, 2], np.uint16), np.array([5, 6, 5], np.uint16), np.ones(3, np.uint8)), [])
 def test_encoder_matches_its_reference_word_by_word(ev, cuts):
     """The encoder kernel (through `Evt3Encoder`, whose state carries over calls) against `reference_encode`,
     on streams crowded with runs and random ones, cut into calls anywhere (a run cut by a call is two runs).
     The examples: from the top of a period onto the next one's 0, then a run at x 0, 1, 2 (a vector), 12 (the
-    first pixel of its second word), 36 (past that word: an ADDR_X); then the same cut after 0 and 1."""
+    first pixel of its second word), 36 (past that word: an ADDR_X); then the same cut after 0 and 1; calls
+    that go on in time-high 0 (a started encoder at time-high 0 writes no TIME_HIGH again); a run broken by
+    its second event's row."""
     t, x, y, p = ev
     n = len(t)
     edges = [0, *sorted(c for c in cuts if c <= n), n]
