@@ -464,7 +464,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         *(f"evstream.framing.represent.xǁVoxelGridǁ_add__mutmut_{n}" for n in (1, *range(32, 56))),
         *(f"evstream.framing.represent.xǁVoxelGridǁ_add_flat__mutmut_{n}" for n in (1, *range(22, 36)))],
     "the time surface's counted positions over fn windows (`where`) computed again for each frame: the same "
-    "array": ["evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_27"],
+    "array; at finish (no chunk, n = 0) use_cls True for False: cls and use_cls are read only where n > 0": [
+        f"evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_{n}" for n in (10, 27)],
     "state_nbytes of an object without a __dict__: None for {} holds no array either (0 bytes)":
         ["evstream.testing.x_state_nbytes__mutmut_49"],
     "voxel kernels' lazy zeroing asked one bin sooner ((lo + 2)·hw >= ready): `ready` is a whole number of "

@@ -746,6 +746,18 @@ def noise_between(seed, n):
     return s.replace(cls=np.where(s.t % 24_000 >= 3000, 1, s.cls).astype(np.uint8))
 
 
+def test_time_surface_over_fn_windows_a_chunk_closes_before_its_counted_events():
+    """fn windows timing out (max_window_us) in the noise between the counted stretches: a chunk then closes a
+    window that holds none of its counted events, and none of them may reach that window's surface."""
+    stream = noise_between(9, 3000)
+    for size in (len(stream), 97, 31):
+        frames = frames_of(make("timesurface", "fn", max_window_us=2000)(), [stream[a : a + size]
+                                                                            for a in range(0, len(stream), size)])
+        assert len(frames) >= 8 and sum(fr.n_events < 120 for fr in frames) >= 4  # some timed out
+        for fr, ref in zip(frames, reference("timesurface", stream, frames, "fn"), strict=True):
+            np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
 @pytest.mark.parametrize("window", ["fw", "oa", "adaptive"])
 def test_windows_of_noise_alone_leave_no_state(window):
     """A window that adds events as they are counted has an array from its first event, counted or not;
