@@ -450,6 +450,11 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "clock past the first event hardly ever refused here): the encoder kernel it calls refuses the same "
     "packet, its check's last time being h << 12 > t0, and the kernel returns j as before": [
         f"evstream.codecs.evt3.x__encode_packets_kernel__mutmut_{n}" for n in (11, 32)],
+    "EVT3 packets kernel: -2 for -1 as the opening clock's 'no time low' and 'no row' (compared with time lows "
+    "and rows, 0 or more; as evt3_sensor_clock's 28, 30); Evt3Encoder's state without its dtype: a list of "
+    "Python ints is int64": [
+        *(f"evstream.codecs.evt3.x__encode_packets_kernel__mutmut_{n}" for n in (84, 88)),
+        *(f"evstream.codecs.evt3.xǁEvt3Encoderǁ__init____mutmut_{n}" for n in (3, 5))],
     "EVT2 encoder: the start value np.int64(1) for 0 before any TIME_HIGH (session 6's, renumbered): frm is "
     "only read as frm >> 28, 0 for both, and replaced by ((frm >> 28) + 1) << 28 at each wrap": [
         "evstream.codecs.evt2.x__encode_kernel__mutmut_16"],
