@@ -758,6 +758,20 @@ def test_time_surface_over_fn_windows_a_chunk_closes_before_its_counted_events()
             np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
 
 
+def test_time_surface_over_an_fn_window_a_chunk_closes_after_noise_and_one_counted_event():
+    """The second chunk starts with noise, then the one counted event that fills the window: the surface at the
+    window's end holds that event (the chunk is applied up to it, not up to its first position)."""
+    g = Geometry(4, 1)
+    s = EventChunk.from_arrays([0, 10, 20, 30, 40], [0, 1, 2, 3, 1], [0] * 5, [1, 1, 0, 1, 0], g)
+    s = s.replace(cls=np.array([0, 1, 0, 0, 0], np.uint8))
+    for chunks in ([s], [s[:1], s[1:]]):
+        frames = frames_of(make("timesurface", "fn", n_events=2)(), chunks)
+        assert [(fr.t_start, fr.t_end, fr.n_events) for fr in frames] == [(0, 21, 2), (30, 41, 2)]
+        assert frames[0].data[0, 0, 2] > 0
+        for fr, ref in zip(frames, reference("timesurface", s, frames, "fn"), strict=True):
+            np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
 @pytest.mark.parametrize("window", ["fw", "oa", "adaptive"])
 def test_windows_of_noise_alone_leave_no_state(window):
     """A window that adds events as they are counted has an array from its first event, counted or not;
