@@ -165,11 +165,9 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "STCF's top-k scratch as float64: NEVER_US (-2^62) and every time below 2^53 us are exact, so the same "
     "comparisons and the same score": [
         f"evstream.denoise.stcf.xǁSpatioTemporalCorrelationFilterǁ__post_init____mutmut_{n}" for n in (72, 74)],
-    "DWF: the rings as float64 (every position exact) or with a third, unused row (and fill/head of 3); "
-    "counting on past k (n > k to stop early) before deciding n >= k": [
+    "DWF: the rings as float64 (every position exact) or with a third, unused row (and fill/head of 3)": [
         *(f"evstream.denoise.dwf.xǁDoubleWindowFilterǁ__post_init____mutmut_{n}"
-          for n in (51, 53, 54, 57, 59, 60, 66, 72)),
-        *(f"evstream.denoise.dwf.x_dwf_kernel__mutmut_{n}" for n in (23, 27))],
+          for n in (51, 53, 54, 57, 59, 60, 66, 72))],
     "YNoise's maps: padded by 3r instead of 2r at the far side (never read: a neighbourhood reaches r), "
     "NEVER_US (the last times, the ring) without a dtype is int64, the last polarity as float64 "
     "(compared equal to the event's)": [
@@ -403,6 +401,15 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     # session 12: denoise_cascade
 
     # session 12: denoise_baselines, denoise_learned
+    "learned features' state: the word and bitmap maps padded by 3r columns for 2r (wp = width + 3r: the extra "
+    "columns right of the sensor are zero, 'never fired', as the 2r padding is, and every index goes through the "
+    "same wp), or a first FIFO of 2 << 12 pairs for 1 << 12 (a power of two too; the kernel grows a full one "
+    "anyway): the same features": [
+        f"evstream.denoise.learned.features.x_new_state__mutmut_{n}" for n in (5, 8)],
+    "learned feature kernel: an MLP's batch arrays allocated for a logistic model too (m_max = BATCH whatever "
+    "n_hidden; never read there); the word rows prefetched from row -2 or at another address (row + k*wp - 1, "
+    "row - k*wp + 1): a prefetch is a hint that never faults and no value depends on": [
+        f"evstream.denoise.learned.features.x_feature_kernel__mutmut_{n}" for n in (38, 150, 156, 157)],
 
     # session 12: codecs, codecs_payloads
     "mono.encode: copy=None / True / left out for copy=False in the final astype('<u8'): a copy or not, the "
