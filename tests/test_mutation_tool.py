@@ -221,3 +221,21 @@ def test_every_target_runs_the_tests_that_import_its_functions(monkeypatch):
     files, tests = mutation.TARGETS["framing_windows"]
     monkeypatch.setitem(mutation.TARGETS, "framing_windows", (files, [t for t in tests if "represent.py" not in t]))
     assert mutation.selection_gaps() == {"framing_windows": ["tests/test_represent.py"]}
+
+
+def test_a_kernel_calling_an_intrinsic_with_a_plain_twin_runs_plain_and_calls_the_twin(monkeypatch):
+    """An `@intrinsic` named in PLAIN_TWINS does not keep its callers compiled: in the copy they run as plain
+    Python (and are mutated), the twin bound to the intrinsic's name. The cascade's target so runs every
+    kernel plain but `prefetch`, which the learned features' compiled kernel calls."""
+    monkeypatch.setitem(mutation.PLAIN_TWINS, "_vector", "_vector = lambda x: x + 1\n")
+    source = ("@intrinsic\ndef _vector(typingctx, x):\n    pass\n\n"
+              "@njit(cache=True)\ndef uses(x):\n    return _vector(x)\n")
+    assert mutation.kept_compiled({"evstream/a.py": source}, {"evstream/a.py"}) == set()
+    plain = mutation.plain_kernels(source)
+    assert "@njit" not in plain and plain.endswith("_vector = lambda x: x + 1\n")
+    space = {"intrinsic": lambda f: f}
+    exec(plain, space)
+    assert space["uses"](1) == 2
+    copy = mutation.plain_sources("denoise_cascade")
+    assert {path for path, src in copy.items() if "@njit" in src} == {mutation.DENOISE + "prefetch.py"}
+    assert copy[mutation.DENOISE + "rowsum.py"].count("reference_add(") == 5  # its definition and 4 twins

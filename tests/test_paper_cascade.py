@@ -9,9 +9,10 @@ from hypothesis import strategies as st
 
 from evstream.denoise import timeseries
 from evstream.denoise.cascade import PaperCascade
-from evstream.denoise.density import DensityFilter
+from evstream.denoise.density import EXPIRE_GROUP, DensityFilter, _head_group, reference_head_group
 from evstream.denoise.timeseries import TimeSeriesFilter
 from evstream.events import EventChunk, Geometry, NoiseClass
+from evstream.jit import njit
 from evstream.testing import (
     assert_bounded_state,
     assert_causal,
@@ -494,3 +495,33 @@ def test_dc_on_a_one_pixel_sensor_judges_the_pixel_by_its_own_activity():
     want_hot, want_score = dc_reference(ev, TimeSeriesFilter(rate_hz=1000.0, lam=0.2))
     assert (codes == NoiseClass.HOT_PIXEL).any()
     assert np.array_equal(codes == NoiseClass.HOT_PIXEL, want_hot) and np.allclose(score, want_score)
+
+
+def _head_groups(fifo_t, fifo_x, fifo_y, heads, oldest, x0, y0, box, out):
+    for k in range(len(heads)):
+        out[k] = _head_group(fifo_t, fifo_x, fifo_y, heads[k], oldest[k], x0[k], y0[k], box[k])
+
+
+if _head_group is not reference_head_group:  # the intrinsic (tests/mutation.py's copy binds the name to its twin)
+    _head_groups = njit(_head_groups)
+
+
+@pytest.mark.parametrize("xy", [np.uint16, np.int32])
+def test_the_head_group_intrinsic_matches_its_plain_twin(xy):
+    """`_head_group` (density's vector test of the FIFO's head group) against `reference_head_group` (the plain
+    twin tests/mutation.py runs the kernel with): times on, before and after `oldest`; coordinates in, on the
+    edges of and out of the box, boxes starting left of or above the sensor (x0, y0 down to -MAX_RADIUS_PX)."""
+    rng = np.random.default_rng(3)
+    cap, m = 4 * EXPIRE_GROUP, 500
+    fifo_t = rng.integers(0, 40, cap).astype(np.int64)
+    fifo_x, fifo_y = rng.integers(0, 12, cap).astype(xy), rng.integers(0, 12, cap).astype(xy)
+    heads = rng.integers(0, cap // EXPIRE_GROUP, m) * EXPIRE_GROUP
+    oldest = rng.integers(-1, 41, m)
+    box = rng.choice([0, 2, 4, 10, 64], m)
+    x0, y0 = rng.integers(-32, 12, m) - box // 2, rng.integers(-32, 12, m) - box // 2
+    got, want = np.zeros(m, np.int64), np.zeros(m, np.int64)
+    _head_groups(fifo_t, fifo_x, fifo_y, heads, oldest, x0, y0, box, got)
+    for k in range(m):
+        want[k] = reference_head_group(fifo_t, fifo_x, fifo_y, heads[k], oldest[k], x0[k], y0[k], box[k])
+    assert np.array_equal(got, want)
+    assert (want & 0xFFFFFFFF).min() == 0 and (want & 0xFFFFFFFF).max() == EXPIRE_GROUP and (want >> 32).any()

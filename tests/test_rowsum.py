@@ -5,17 +5,31 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from evstream.denoise.rowsum import column_sum, lanes, padded_map, row_add, row_full
+from evstream.denoise.rowsum import (
+    _add_4,
+    _add_8,
+    _add_16,
+    _add_32,
+    _full_4,
+    _full_8,
+    _full_16,
+    _full_32,
+    column_sum,
+    lanes,
+    padded_map,
+    reference_add,
+    reference_full,
+    row_add,
+    row_full,
+)
 from evstream.jit import Kernel, njit  # numba's own njit cannot type the kernels inside until evstream.jit taught it
 
 
-@njit
 def _apply(a, pos, delta, L):
     for i in range(len(pos)):
         row_add(a, pos[i], delta[i], L)
 
 
-@njit
 def _full(a, pos, L, limit):
     out = np.empty(len(pos), np.bool_)
     for i in range(len(pos)):
@@ -30,7 +44,29 @@ def _columns(a, q, stride, L):
     return out
 
 
-if isinstance(column_sum, Kernel):  # compiled, as stages call it (tests/mutation.py runs it as plain Python)
+def _vector_ops(a, pos, delta, n, limit, out):
+    """Each vector add, then each vector test, of the four widths at `pos` (into `out`)."""
+    _add_4(a, pos, delta, n)
+    _add_8(a, pos + 1, delta, n)
+    _add_16(a, pos + 2, delta, n)
+    _add_32(a, pos + 3, delta, n)
+    out[0] = _full_4(a, pos, n, limit)
+    out[1] = _full_8(a, pos, n, limit)
+    out[2] = _full_16(a, pos, n, limit)
+    out[3] = _full_32(a, pos, n, limit)
+
+
+def _reference_ops(a, pos, delta, n, limit, out):
+    for k, cells in enumerate((4, 8, 16, 32)):
+        reference_add(a, pos + k, delta, n, cells)
+    for k, cells in enumerate((4, 8, 16, 32)):
+        out[k] = reference_full(a, pos, n, limit, cells)
+
+
+# compiled, as the stages call them (tests/mutation.py runs them as plain Python, the intrinsics by their twins)
+if isinstance(row_add, Kernel):
+    _apply, _full, _vector_ops = njit(_apply), njit(_full), njit(_vector_ops)
+if isinstance(column_sum, Kernel):
     _columns = njit(_columns)
 
 
@@ -73,3 +109,25 @@ def test_column_sum_and_the_padded_map(seed, L):
     q = rng.integers(0, (h + 2 * r - L + 1) * stride, 100)
     expected = [sum(int(a[k + j * stride]) for j in range(L)) for k in q]
     assert _columns(a, q, stride, L).tolist() == expected
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.int64])
+def test_the_vector_intrinsics_match_their_plain_twins(dtype):
+    """`_add_N` and `_full_N` against `reference_add` / `reference_full` (the plain twins tests/mutation.py runs
+    the kernels with): each width's lanes, the cells past them left alone, n from -1 to past 32, deltas that
+    wrap the cells, limits below, at and past the type's largest value (taken as a cell)."""
+    rng = np.random.default_rng(7)
+    top = int(np.iinfo(dtype).max)
+    for n in range(-1, 35):
+        for _ in range(6):
+            a = rng.integers(0, min(top, 1000) + 1, 100).astype(dtype)
+            a[rng.random(100) < 0.1] = top
+            pos, delta = int(rng.integers(0, 30)), int(rng.choice([-2, -1, 0, 1, 3]))
+            past = top + 3 if top < 2**62 else top  # an int64 limit: the kernels pass one
+            limit = int(rng.choice([1, 5, top, past, int(rng.integers(0, top + 1))]))
+            got, want = a.copy(), a.copy()
+            got_full, want_full = np.zeros(4, np.bool_), np.zeros(4, np.bool_)
+            _vector_ops(got, pos, delta, n, limit, got_full)
+            _reference_ops(want, pos, delta, n, limit, want_full)
+            assert np.array_equal(got, want), (n, pos, delta)
+            assert got_full.tolist() == want_full.tolist(), (n, pos, limit)

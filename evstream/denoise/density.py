@@ -93,6 +93,16 @@ def _head_group(typingctx, fifo_t, fifo_x, fifo_y, head, oldest, x0, y0, box):
     return types.int64(fifo_t, fifo_x, fifo_y, types.intp, types.int64, types.intp, types.intp, types.intp), codegen
 
 
+def reference_head_group(fifo_t, fifo_x, fifo_y, head, oldest, x0, y0, box) -> int:
+    """`_head_group` in plain Python (its tests' reference; the plain twin tests/mutation.py runs in its
+    place): the same `out + (near << 32)`, the coordinates compared modulo their width."""
+    group = slice(head, head + EXPIRE_GROUP)
+    wrap = (1 << (8 * fifo_x.itemsize)) - 1
+    gone = fifo_t[group] <= oldest
+    inside = [((c[group].astype(np.int64) - lo) & wrap) <= (box & wrap) for c, lo in ((fifo_x, x0), (fifo_y, y0))]
+    return int(gone.sum()) + (int((gone & inside[0] & inside[1]).sum()) << 32)
+
+
 @functools.cache
 def density_kernel(radius, mode, match_polarity, clip_border, want_score, all_live, far):
     """The kernel compiled for one configuration: the options are compile-time constants, so the

@@ -127,6 +127,21 @@ def _lanes_of(typingctx, a):
     return types.intp(a), codegen
 
 
+def reference_add(a, pos, delta, n, cells):
+    """`_vector_add(cells)`'s add in plain Python (its tests' reference; the plain twin tests/mutation.py
+    runs in its place): the first n of the vector's lanes from pos, at most min(cells, VECTOR_BYTES //
+    itemsize), gain delta, wrapping like the cells."""
+    m = max(0, min(n, cells, lanes(a.dtype)))
+    a[pos : pos + m] = (a[pos : pos + m].astype(np.int64) + int(delta)).astype(a.dtype)
+
+
+def reference_full(a, pos, n, limit, cells):
+    """`_vector_full(cells)`'s test in plain Python (as `reference_add`): whether one of the first n lanes
+    from pos is >= limit, the limit taken as a cell (truncated to the cells' type) and compared in it."""
+    m = max(0, min(n, cells, lanes(a.dtype)))
+    return bool((a[pos : pos + m] >= np.array(limit).astype(a.dtype)).any())
+
+
 @njit(cache=True, nogil=True, inline="always")
 def row_add(a, pos, delta, L):
     """a[pos : pos + L] += delta, in vectors of the fewest cells, a power of two, that hold L (at most
