@@ -1,6 +1,7 @@
 """The paper's cascade: numba kernels against plain-Python brute force, invariants, parameters."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -322,25 +323,30 @@ def test_state_is_bounded(make):
 
 
 @pytest.mark.parametrize("far", [False, True])
-def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept(far, monkeypatch):
-    """Over maps larger than the L2 cache (`FAR_BYTES`, here 0 when `far`) too, the cascade's one kernel
-    (its stages' prefetching variants) gives the stages' classes one after the other."""
+@pytest.mark.parametrize("options, fine_options", [({}, {}),
+                                                   ({"match_polarity": True, "clip_border": True}, {"form": "ratio"}),
+                                                   ({"mode": "absolute", "density_hz": 8000.0}, {})])
+def test_cascade_feeds_the_fine_stage_only_what_the_coarse_stage_kept(far, options, fine_options, monkeypatch):
+    """Over maps larger than the L2 cache (`FAR_BYTES`, here 0 when `far`) too, and with the stages' options
+    that use each argument the cascade's kernel passes on (polarity planes, absolute mode, ratio form), the
+    cascade's one kernel gives the stages' classes one after the other."""
     from evstream.denoise import density
 
     if far:
         monkeypatch.setattr(density, "FAR_BYTES", 0)
         monkeypatch.setattr(timeseries, "FAR_BYTES", 0)
     s = random_stream(5, 3000, G)
-    cascade = PaperCascade(coarse={"window_us": 1000}, fine={"rate_hz": 5000.0})
+    cascade = PaperCascade(coarse={"window_us": 1000, **options}, fine={"rate_hz": 5000.0, **fine_options})
     got = classify_all(cascade, [s])
-    coarse = DensityFilter(window_us=1000)(s)
-    fine = TimeSeriesFilter(rate_hz=5000.0)
+    coarse = DensityFilter(window_us=1000, **options)(s)
+    fine = TimeSeriesFilter(rate_hz=5000.0, **fine_options)
     kept = np.flatnonzero(coarse.cls == 0)
     expected = coarse.cls.copy()
     expected[kept] = fine.classify(s[kept])
     assert np.array_equal(got, expected)
     assert set(np.unique(got)) <= {0, 1, 2}
-    codes, score = PaperCascade(coarse={"window_us": 1000}, fine={"rate_hz": 5000.0}).classify_scored(s)
+    codes, score = PaperCascade(coarse={"window_us": 1000, **options},
+                                fine={"rate_hz": 5000.0, **fine_options}).classify_scored(s)
     assert np.array_equal(codes, got)
     assert ((score >= 1) == (got == 0)).all()
 
@@ -433,13 +439,24 @@ def test_hot_pixels_are_found_and_signal_kept_on_a_synthetic_scene():
     assert (cls[lab == NoiseClass.BACKGROUND] != NoiseClass.SIGNAL).mean() > 0.8
 
 
-@pytest.mark.parametrize("bad", [
-    {"radius_px": -1}, {"radius_px": 1.5}, {"radius_px": True}, {"radius_px": 100_000}, {"window_us": 0},
-    {"window_us": 1.5}, {"window_us": "20ms"}, {"mode": "fuzzy"}, {"density_hz": -1}, {"rho_rel": float("nan")},
-    {"rho_rel": -1}, {"rho_rel": float("inf")}, {"density_hz": float("inf")},
+_RADIUS = "radius_px must be an integer in 0..32 (L = 2r + 1 is odd), got "
+_WINDOW = "window_us must be a positive whole number of µs, got "
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"radius_px": -1}, _RADIUS + "-1"), ({"radius_px": 1.5}, _RADIUS + "1.5"), ({"radius_px": True}, _RADIUS + "True"),
+    ({"radius_px": 100_000}, _RADIUS + "100000"), ({"window_us": 0}, _WINDOW + "0"),
+    ({"window_us": 1.5}, _WINDOW + "1.5"), ({"window_us": "20ms"}, _WINDOW + "'20ms'"),
+    ({"mode": "fuzzy"}, "mode must be 'relative' or 'absolute', got 'fuzzy'"),
+    ({"density_hz": -1}, "density_hz must be a finite number >= 0, got -1"),
+    ({"density_hz": float("inf")}, "density_hz must be a finite number >= 0, got inf"),
+    ({"rho_rel": float("nan")}, "rho_rel must be a finite number >= 0, got nan"),
+    ({"rho_rel": -1}, "rho_rel must be a finite number >= 0, got -1"),
+    ({"rho_rel": float("inf")}, "rho_rel must be a finite number >= 0, got inf"),
 ])
-def test_density_rejects_bad_parameters(bad):
-    with pytest.raises(ValueError):
+def test_density_rejects_bad_parameters(bad, message):
+    """Each check refuses its bad value with the whole message, the value as given."""
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}$"):
         DensityFilter(**bad)
 
 
@@ -454,13 +471,24 @@ def test_a_stage_keeps_its_state_when_a_chunk_brings_an_equal_geometry(make):
     assert np.allclose(np.concatenate([first, second]), whole)
 
 
-@pytest.mark.parametrize("bad", [
-    {"rate_hz": 0}, {"rate_hz": 3.0}, {"n_bins": 256}, {"n_bins": 0}, {"n_bins": 64.0}, {"lam": 1.5}, {"lam": -0.1},
-    {"form": "sum"}, {"radius_px": 0}, {"radius_px": 200, "n_bins": 200}, {"radius_px": True}, {"radius_px": 33},
-    {"n_bins": True},
+_RATE = "rate_hz must divide 1 MHz (bins of whole µs), got "
+_BINS = "n_bins must be an integer in 1..255 (a uint8 count per pixel), got "
+_LAM = "lam must be in [0, 1) for the difference form, >= 0 for ratio; got "
+_DC_RADIUS = "radius_px must be an integer in 1..32, got "
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"rate_hz": 0}, _RATE + "0"), ({"rate_hz": 3.0}, _RATE + "3.0"), ({"rate_hz": float("inf")}, _RATE + "inf"),
+    ({"n_bins": 256}, _BINS + "256"), ({"n_bins": 0}, _BINS + "0"), ({"n_bins": 64.0}, _BINS + "64.0"),
+    ({"n_bins": True}, _BINS + "True"), ({"lam": 1.5}, _LAM + "1.5"), ({"lam": -0.1}, _LAM + "-0.1"),
+    ({"lam": -0.1, "form": "ratio"}, _LAM + "-0.1"), ({"lam": float("nan"), "form": "ratio"}, _LAM + "nan"),
+    ({"form": "sum"}, "form must be 'difference' or 'ratio', got 'sum'"), ({"radius_px": 0}, _DC_RADIUS + "0"),
+    ({"radius_px": 200, "n_bins": 200}, _DC_RADIUS + "200"), ({"radius_px": True}, _DC_RADIUS + "True"),
+    ({"radius_px": 33}, _DC_RADIUS + "33"),
 ])
-def test_dc_rejects_bad_parameters(bad):
-    with pytest.raises(ValueError):
+def test_dc_rejects_bad_parameters(bad, message):
+    """Each check refuses its bad value with the whole message, the value as given."""
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}$"):
         TimeSeriesFilter(**bad)
 
 
@@ -469,10 +497,12 @@ def test_absolute_threshold_as_a_count():
     assert DensityFilter(mode="absolute", radius_px=1, window_us=10_000).n_threshold == 1
 
 
-@pytest.mark.parametrize("coarse", [{"window_us": 1000}, {"mode": "absolute", "window_us": 2000}])
+@pytest.mark.parametrize("coarse", [{"window_us": 1000}, {"mode": "absolute", "window_us": 2000},
+                                    {"window_us": 1000, "rho_rel": 0.0}])
 def test_cascade_score_is_the_coarse_reference_score_over_its_threshold(coarse):
-    """The ROC score of the cascade: the coarse score over the coarse threshold in either mode (-1 where
-    the fine stage calls the event hot), beside the cascade's own uint8 class codes."""
+    """The ROC score of the cascade: the coarse score over the coarse threshold in either mode, or the coarse
+    score itself when that threshold is 0 (-1 where the fine stage calls the event hot), beside the
+    cascade's own uint8 class codes."""
     s = random_stream(4, 600, G)
     codes, score = PaperCascade(coarse=coarse, fine={"rate_hz": 5000.0}).classify_scored(s)
     assert codes.dtype == np.uint8
@@ -481,7 +511,8 @@ def test_cascade_score_is_the_coarse_reference_score_over_its_threshold(coarse):
     threshold = d.density_hz if d.mode == "absolute" else d.rho_rel
     hot = codes == NoiseClass.HOT_PIXEL
     assert hot.any() and (score[hot] == -1).all()
-    assert np.allclose(score[~hot], density_reference(s, d)[1][~hot] / threshold)
+    want = density_reference(s, d)[1][~hot]
+    assert np.allclose(score[~hot], want / threshold if threshold else want)
 
 
 def test_dc_on_a_one_pixel_sensor_judges_the_pixel_by_its_own_activity():
@@ -525,3 +556,41 @@ def test_the_head_group_intrinsic_matches_its_plain_twin(xy):
         want[k] = reference_head_group(fifo_t, fifo_x, fifo_y, heads[k], oldest[k], x0[k], y0[k], box[k])
     assert np.array_equal(got, want)
     assert (want & 0xFFFFFFFF).min() == 0 and (want & 0xFFFFFFFF).max() == EXPIRE_GROUP and (want >> 32).any()
+
+
+def test_a_stage_after_the_cascade_judges_only_the_events_it_kept():
+    """A stage on the base `Classifier` path (a baseline) after the cascade classifies the events the cascade
+    kept, and only those, keeping the cascade's classes for the others; a chunk the cascade rejected whole
+    reaches it empty (it sees the watermark) and passes on unchanged."""
+    from evstream.denoise.refractory import RefractoryFilter
+
+    s = random_stream(9, 2000, G)
+    first = PaperCascade(coarse={"window_us": 800}, fine={"rate_hz": 5000.0})(s)
+    live = np.flatnonzero(first.cls == NoiseClass.SIGNAL)
+    want = first.cls.copy()
+    want[live] = RefractoryFilter(refractory_us=200).classify(s[live])
+    assert 0 < len(live) < len(s) and (want[live] != NoiseClass.SIGNAL).any()
+    assert np.array_equal(RefractoryFilter(refractory_us=200)(first).cls, want)
+    gone = s.replace(cls=np.full(len(s), NoiseClass.BACKGROUND, np.uint8))
+    out = RefractoryFilter(refractory_us=200)(gone)
+    assert out.cls.dtype == np.uint8 and (out.cls == NoiseClass.BACKGROUND).all() and gone.cls is not out.cls
+
+
+def test_a_baseline_scores_after_the_cascade_only_the_events_it_kept():
+    """`scored` (the baselines' evaluation interface, as the cascade's): after the cascade, NaN for the events
+    it rejected and the stage's own scores and classes for those it kept; on an unclassified chunk, the
+    stage's `classify_scored` (uint8 codes) and `score` the same scores."""
+    from evstream.denoise.refractory import RefractoryFilter
+
+    s = random_stream(9, 2000, G)
+    first = PaperCascade(coarse={"window_us": 800}, fine={"rate_hz": 5000.0})(s)
+    live = first.cls == NoiseClass.SIGNAL
+    out, scores = RefractoryFilter(refractory_us=200).scored(first)
+    codes, want = RefractoryFilter(refractory_us=200).classify_scored(s[live])
+    assert np.isnan(scores[~live]).all() and np.array_equal(scores[live], want)
+    assert np.array_equal(out.cls[live], codes) and np.array_equal(out.cls[~live], first.cls[~live])
+    assert (codes != NoiseClass.SIGNAL).any()
+    out, scores = RefractoryFilter(refractory_us=200).scored(s)
+    codes, want = RefractoryFilter(refractory_us=200).classify_scored(s)
+    assert out.cls.dtype == np.uint8 and np.array_equal(out.cls, codes) and np.array_equal(scores, want)
+    assert np.array_equal(RefractoryFilter(refractory_us=200).score(s), want)
