@@ -950,6 +950,14 @@ def guard(worker: subprocess.Popen, running: Path, poll_s: float = 0.5, cpu_s: f
     return None
 
 
+def sampled(names: list[str], n: int) -> list[str]:
+    """A seeded random `n` of `names`, in the order drawn, which is the order they run: a run cut short has
+    run a random sample too (the first m drawn; for a module of 1,046 or more mutants and n <= 341 they are
+    `--sample m`'s, as random.sample draws one by one there). Session 12's first cascade sample ran in name
+    order: cut short, it had run whole files and none of others."""
+    return random.Random(0).sample(names, n)
+
+
 def inproc(name: str, only: list[str] = (), again: bool = False, sample: int = 0) -> dict:
     """Run module `name`'s mutants (those matching `only`, if given; a random `sample` of them, the same
     for the same mutants) in-process; the score as `run`'s, over the mutants run."""
@@ -967,7 +975,7 @@ def inproc(name: str, only: list[str] = (), again: bool = False, sample: int = 0
         names = [m for g in only for m in names if fnmatch.fnmatchcase(m, g)]
         names = list(dict.fromkeys(names))
     if sample and sample < len(names):  # an unbiased estimate of the score when all would take too long
-        names = sorted(random.Random(0).sample(names, sample), key=names.index)
+        names = sampled(names, sample)
     path = ws / "inproc.json"
     if again:  # the worker forgets their verdicts once its control run has passed (forget_redone)
         (ws / "inproc.redo").write_text("\n".join(names))

@@ -239,3 +239,13 @@ def test_a_kernel_calling_an_intrinsic_with_a_plain_twin_runs_plain_and_calls_th
     copy = mutation.plain_sources("denoise_cascade")
     assert {path for path, src in copy.items() if "@njit" in src} == {mutation.DENOISE + "prefetch.py"}
     assert copy[mutation.DENOISE + "rowsum.py"].count("reference_add(") == 5  # its definition and 4 twins
+
+
+def test_a_sample_runs_in_the_order_drawn_so_a_run_cut_short_is_a_smaller_sample():
+    """`--sample N` runs its mutants in the order drawn: the first m run are `--sample m`'s mutants (the same
+    seed, N <= 341 of 1,046 or more), a random sample of the whole, not the first files'."""
+    names = [f"evstream.m{k // 300}.x_f__mutmut_{k}" for k in range(2000)]
+    for small, large in ((120, 200), (200, 341), (5, 6)):
+        assert mutation.sampled(names, large)[:small] == mutation.sampled(names, small)
+    first = mutation.sampled(names, 200)[:60]
+    assert len({m.split(".")[1] for m in first}) > 3 and first != sorted(first, key=names.index)
