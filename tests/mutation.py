@@ -409,6 +409,21 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.framing.render.x_coloured__mutmut_33", "evstream.framing.render.x_render_representation__mutmut_20",
         "evstream.framing.render.x_write_png__mutmut_4"],
     # session 12: denoise_cascade
+    "TimeSeriesFilter._bind: `far` (which kernel variant runs: the prefetching one or not) decided otherwise "
+    "(2 / nbytes > FAR_BYTES): both variants give the same classes and scores (test_prefetching_kernels_match_"
+    "brute_force), so only the speed differs": ["evstream.denoise.timeseries.xǁTimeSeriesFilterǁ_bind__mutmut_5"],
+    "the bound call looked up under None (never a key) and so bound again: setdefault returns the call already "
+    "bound for this variant, the same call (a cost, not a result)": [
+        "evstream.denoise.timeseries.xǁTimeSeriesFilterǁ_judge__mutmut_9"],
+    "TimeSeriesFilter's grown `live` buffer as float64 (np.empty(n, None)): as _ready 24 (session 10), event "
+    "indices exact in float64, each read through ix() before it indexes": [
+        "evstream.denoise.timeseries.xǁTimeSeriesFilterǁ_ready__mutmut_22"],
+    "TimeSeriesFilter._init's first `live` buffer (0 events) as float64: _ready replaces it with an int64 one "
+    "before any chunk of one event or more is judged, and a chunk of none gathers nothing into it": [
+        "evstream.denoise.timeseries.xǁTimeSeriesFilterǁ_init__mutmut_62"],
+    "a stage's first FIFO capacity from another estimate (n_pixels // 5 for // 4): fifo_capacity gives at least "
+    "4,096 and the FIFO doubles whenever full (test_dc_activation_fifo_grows_past_its_initial_capacity): the same "
+    "classes": ["evstream.denoise.timeseries.xǁTimeSeriesFilterǁ_init__mutmut_5"],
 
     # session 12: denoise_baselines, denoise_learned
     "learned features' state: the word and bitmap maps padded by 3r columns for 2r (wp = width + 3r: the extra "
