@@ -424,6 +424,13 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "a stage's first FIFO capacity from another estimate (n_pixels // 5 for // 4): fifo_capacity gives at least "
     "4,096 and the FIFO doubles whenever full (test_dc_activation_fifo_grows_past_its_initial_capacity): the same "
     "classes": ["evstream.denoise.timeseries.xǁTimeSeriesFilterǁ_init__mutmut_5"],
+    "TimeSeriesFilter's uint16 row-sum check as (2r + 1) / n_bins > 65535: like __post_init__ 60 (session 10), "
+    "after the radius (<= 32) and n_bins (<= 255) checks no form of it raises ((2r + 1) n_bins <= 16575)": [
+        "evstream.denoise.timeseries.xǁTimeSeriesFilterǁ__post_init____mutmut_56"],
+    "a prefetch at another address (density's FIFO entry 32 behind the head for 32 ahead, the index still masked "
+    "into the ring; DC's cell q - r for q + r): a hint to the cache no value depends on, as dc_kernel 90 (session "
+    "10); `prefetch` stays compiled and never faults": [
+        "evstream.denoise.density.x_density_kernel__mutmut_102", "evstream.denoise.timeseries.x_dc_kernel__mutmut_66"],
 
     # session 12: denoise_baselines, denoise_learned
     "learned features' state: the word and bitmap maps padded by 3r columns for 2r (wp = width + 3r: the extra "
