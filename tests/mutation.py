@@ -431,6 +431,8 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "into the ring; DC's cell q - r for q + r): a hint to the cache no value depends on, as dc_kernel 90 (session "
     "10); `prefetch` stays compiled and never faults": [
         "evstream.denoise.density.x_density_kernel__mutmut_102", "evstream.denoise.timeseries.x_dc_kernel__mutmut_66"],
+    "dc_kernel's outer loop as while j <= k (session 6): at j == k, stop = min(k, j + cap - size) == j and the "
+    "loop breaks at once, returning j >= k as before": ["evstream.denoise.timeseries.x_dc_kernel__mutmut_43"],
 
     # session 12: denoise_baselines, denoise_learned
     "learned features' state: the word and bitmap maps padded by 3r columns for 2r (wp = width + 3r: the extra "
