@@ -324,6 +324,17 @@ def test_every_make_target_a_user_types_rebuilds_stale_kernels_and_only_then(tmp
     assert out.count("-m evstream.aot") == 1
 
 
+def _load_at_a_terminal(index_path, monkeypatch) -> str:
+    """What `jit.load_aot(index_path)` (which must load nothing) says on stderr when stderr is a terminal."""
+    terminal, tty_name = os.openpty()
+    with open(tty_name, "w", closefd=True) as tty:
+        monkeypatch.setattr(sys, "stderr", tty)
+        assert jit.load_aot(index_path) == {}
+    said = os.read(terminal, 4096).decode()
+    os.close(terminal)
+    return said
+
+
 @needs_aot
 def test_a_module_older_than_the_sources_says_so_on_a_terminal(tmp_path, monkeypatch, capsys):
     """After a `git pull` that changed a kernel's module, a command ran numba (seconds) without a word on why
@@ -334,12 +345,7 @@ def test_a_module_older_than_the_sources_says_so_on_a_terminal(tmp_path, monkeyp
     index["sources"][path][1] += 1  # as if pulled after the build
     index_path.write_text(json.dumps(index))
     assert jit.load_aot(index_path) == {} and capsys.readouterr().err == ""
-    terminal, tty_name = os.openpty()
-    with open(tty_name, "w", closefd=True) as tty:
-        monkeypatch.setattr(sys, "stderr", tty)
-        assert jit.load_aot(index_path) == {}
-    said = os.read(terminal, 4096).decode()
-    os.close(terminal)
+    said = _load_at_a_terminal(index_path, monkeypatch)
     name = os.path.relpath(path, Path(index["package"]).parent)
     assert said == (f"evstream: note: {name} changed since the kernels were compiled ahead of time: numba compiles "
                     "them instead (seconds at first use); `make aot` rebuilds them\r\n")
@@ -347,11 +353,6 @@ def test_a_module_older_than_the_sources_says_so_on_a_terminal(tmp_path, monkeyp
         for other in list(index["sources"])[1:n]:
             index["sources"][other][1] += 1
         index_path.write_text(json.dumps(index))
-        terminal, tty_name = os.openpty()
-        with open(tty_name, "w", closefd=True) as tty:
-            monkeypatch.setattr(sys, "stderr", tty)
-            assert jit.load_aot(index_path) == {}
-        said = os.read(terminal, 4096).decode()
-        os.close(terminal)
+        said = _load_at_a_terminal(index_path, monkeypatch)
         more = f"and {n - 1} more file{'s' if n > 2 else ''} changed since"
         assert said.startswith("evstream: note: ") and more in said.splitlines()[0], said
