@@ -17,6 +17,7 @@ NUMBA_DISABLE_JIT=1 these are numba's own objects, so kernels run as plain Pytho
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib.machinery
@@ -30,6 +31,8 @@ import weakref
 from pathlib import Path
 
 import numpy as np
+
+from . import _start
 
 _LOCK = threading.RLock()
 KERNELS: weakref.WeakSet = weakref.WeakSet()  # every Kernel made (evstream.aot picks the ones the commands call)
@@ -103,6 +106,7 @@ class Kernel:
         if self._dispatcher is None:
             with _LOCK:
                 if self._dispatcher is None:
+                    _say_stale()
                     self._dispatcher = _numba().njit(**self.targetoptions)(self.py_func)
         return self._dispatcher
 
@@ -299,6 +303,28 @@ def _aot_index() -> dict:
 
 
 _MODULES: list = []  # the ahead-of-time modules loaded (kept alive)
+_STALE: list = []  # the note on a module older than the sources (load_aot), until said or dropped
+_QUIET = [False]
+
+
+@contextlib.contextmanager
+def quiet_notes(quiet: bool = True):
+    """No note on stderr inside (a command's `--quiet`): the one on a stale module is dropped, not kept."""
+    before = _QUIET[0]
+    _QUIET[0] = quiet
+    try:
+        yield
+    finally:
+        _QUIET[0] = before
+
+
+def _say_stale() -> None:
+    """The note of a module older than the sources, once, when numba is about to compile a kernel (not at
+    import: a command has not read its `--quiet` yet, and one that compiles nothing has nothing to say).
+    Only to a person at a terminal, and not from a batch's worker (its command says it once)."""
+    note = _STALE.pop() if _STALE else None
+    if note and not _QUIET[0] and sys.stderr is not None and sys.stderr.isatty() and not _start._a_spawned_worker():
+        print(note, file=sys.stderr)
 
 
 def load_aot(index_path: Path) -> dict:
@@ -313,11 +339,11 @@ def load_aot(index_path: Path) -> dict:
             return {}
         changed = changed_sources(index["sources"])
         if changed or index["cpu"] != cpu_id():
-            if changed and sys.stderr is not None and sys.stderr.isatty():  # a person at a terminal, after a pull
+            if changed:  # said when numba first compiles (_say_stale), if to a person at a terminal
                 first = os.path.relpath(changed[0], Path(index["package"]).parent)
                 more = f" and {len(changed) - 1} more file{'s' if len(changed) > 2 else ''}" if len(changed) > 1 else ""
-                print(f"evstream: note: {first}{more} changed since the kernels were compiled ahead of time: numba "
-                      "compiles them instead (seconds at first use); `make aot` rebuilds them", file=sys.stderr)
+                _STALE[:] = [f"evstream: note: {first}{more} changed since the kernels were compiled ahead of time: "
+                             "numba compiles them instead (seconds at first use); `make aot` rebuilds them"]
             return {}
         if not index["module"].endswith(importlib.machinery.EXTENSION_SUFFIXES[0]):
             return {}  # built for another Python (its ABI in the name): loaded by path, it would not be refused

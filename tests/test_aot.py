@@ -8,6 +8,7 @@ import contextlib
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -324,15 +325,20 @@ def test_every_make_target_a_user_types_rebuilds_stale_kernels_and_only_then(tmp
     assert out.count("-m evstream.aot") == 1
 
 
-def _load_at_a_terminal(index_path, monkeypatch) -> str:
-    """What `jit.load_aot(index_path)` (which must load nothing) says on stderr when stderr is a terminal."""
+def _load_at_a_terminal(index_path, monkeypatch, quiet: bool = False) -> str:
+    """What `jit.load_aot(index_path)` (which must load nothing) and numba's next compile say on stderr when
+    stderr is a terminal (inside `jit.quiet_notes()` with `quiet`)."""
     terminal, tty_name = os.openpty()
     with open(tty_name, "w", closefd=True) as tty:
         monkeypatch.setattr(sys, "stderr", tty)
         assert jit.load_aot(index_path) == {}
+        with jit.quiet_notes(quiet):
+            jit._say_stale()
+        print("end", file=tty)  # the read below waits for something
     said = os.read(terminal, 4096).decode()
     os.close(terminal)
-    return said
+    assert said.endswith("end\r\n")
+    return said.removesuffix("end\r\n")
 
 
 @needs_aot
@@ -345,6 +351,9 @@ def test_a_module_older_than_the_sources_says_so_on_a_terminal(tmp_path, monkeyp
     index["sources"][path][1] += 1  # as if pulled after the build
     index_path.write_text(json.dumps(index))
     assert jit.load_aot(index_path) == {} and capsys.readouterr().err == ""
+    jit._say_stale()
+    assert capsys.readouterr().err == ""
+    assert _load_at_a_terminal(index_path, monkeypatch, quiet=True) == ""
     said = _load_at_a_terminal(index_path, monkeypatch)
     name = os.path.relpath(path, Path(index["package"]).parent)
     assert said == (f"evstream: note: {name} changed since the kernels were compiled ahead of time: numba compiles "
@@ -356,3 +365,49 @@ def test_a_module_older_than_the_sources_says_so_on_a_terminal(tmp_path, monkeyp
         said = _load_at_a_terminal(index_path, monkeypatch)
         more = f"and {n - 1} more file{'s' if n > 2 else ''} changed since"
         assert said.startswith("evstream: note: ") and more in said.splitlines()[0], said
+
+
+def _stale_copy_of_the_package(ws: Path) -> None:
+    """`ws/evstream`: the package as it installs (sources/ and sinks/ inside), with a copy of the ahead-of-time
+    module whose index is for this copy, built before its last edit of a kernel's module (events.py)."""
+    index = json.loads(jit.AOT_INDEX.read_text())
+    package = jit.AOT_INDEX.parent
+    ignore = shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc", "*.pyc", "_aot.*", ".aot-build-*")
+    shutil.copytree(package, ws / "evstream", ignore=ignore)
+    for sub in ("sources", "sinks"):
+        shutil.copytree(package.parent / sub, ws / "evstream" / sub, ignore=ignore)
+    (ws / "evstream" / index["module"]).write_bytes(package.joinpath(index["module"]).read_bytes())
+    index["package"] = str((ws / "evstream").resolve())
+    index["sources"] = jit.source_stamps(sorted((ws / "evstream").rglob("*.py")))
+    index["sources"][str((ws / "evstream" / "events.py").resolve())][1] -= 1  # as if pulled after the build
+    (ws / "evstream" / jit.AOT_INDEX.name).write_text(json.dumps(index))
+
+
+@needs_aot
+def test_the_stale_module_note_keeps_to_quiet(tmp_path):
+    """The note on a module older than the sources was printed at import, before a command had read its
+    flags: `--quiet` at a terminal still printed it (session 12). Now said when numba first compiles (once),
+    and not under `--quiet`."""
+    _stale_copy_of_the_package(tmp_path)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    env.pop("EVSTREAM_AOT", None)
+
+    def at_a_terminal(*argv) -> str:
+        terminal, tty = os.openpty()
+        code = ("import sys; sys.path.insert(0, sys.argv[1]); from evstream.cli import main; "
+                "sys.exit(main(sys.argv[2:]))")
+        proc = subprocess.run([sys.executable, "-c", code, str(tmp_path), *argv], cwd=tmp_path, env=env,
+                              stderr=tty, stdout=subprocess.DEVNULL, timeout=600)
+        os.write(tty, b"end\n")
+        os.close(tty)
+        said = os.read(terminal, 65536).decode()
+        os.close(terminal)
+        assert proc.returncode == 0, said
+        return said.removesuffix("end\r\n")
+
+    synth = ["synth", "bar", "bar.npz", "--duration-ms", "20"]
+    assert at_a_terminal(*synth, "--quiet") == ""
+    said = at_a_terminal(*synth)
+    assert said.startswith("evstream: note: evstream/events.py changed since the kernels were compiled ahead of "
+                           "time: numba compiles them instead"), said
+    assert said.count("evstream: note:") == 1

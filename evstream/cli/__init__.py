@@ -17,7 +17,7 @@ import warnings
 # set, wins).
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off")
 
-from .. import _start
+from .. import _start, jit
 from ..events import EventError
 from . import archive, evaluate, files, frames, publish, replay, router, stages, subscribe, train
 from .batch import flags_of
@@ -61,7 +61,8 @@ def main(argv=None) -> int:
     with warnings.catch_warnings():  # restores the caller's warning display afterwards
         if not args.debug:
             warnings.showwarning = _show_warning
-        return _run(args)
+        with jit.quiet_notes(getattr(args, "quiet", False)):  # the note on stale compiled kernels (evstream/jit.py)
+            return _run(args)
 
 
 def _run(args) -> int:
