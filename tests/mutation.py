@@ -434,6 +434,32 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "dc_kernel's outer loop as while j <= k (session 6): at j == k, stop = min(k, j + cap - size) == j and the "
     "loop breaks at once, returning j >= k as before": ["evstream.denoise.timeseries.x_dc_kernel__mutmut_43"],
 
+    # session 13: denoise_cascade (the other 89 of session 12's random 200)
+    "DensityFilter._run's score array as np.zeros(n, ): float64 is np.zeros' default dtype, the same array": [
+        "evstream.denoise.density.xǁDensityFilterǁ_run__mutmut_23"],
+    "DensityFilter._run after a grow stores the call it binds under None (never looked up): _grow's _bind has just "
+    "emptied _calls, so setdefault returns that new call for this variant all the same; the next chunk binds "
+    "again (a cost, not a result, as TimeSeriesFilter._judge 9)": [
+        "evstream.denoise.density.xǁDensityFilterǁ_run__mutmut_43"],
+    "DensityFilter._init's first FIFO capacity from n_pixels / 16 for // 16: fifo_capacity takes int(entries), and "
+    "int(n / 16) == n // 16 for any sensor (exact below 2**53)": [
+        "evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_5"],
+    "DensityFilter._init's map of two planes without match_polarity: the second plane is never read or written "
+    "(every event's plane is 0, its position and fifo_y the same); only `far` (4 x nbytes > FAR_BYTES) holds from "
+    "half the sensor size, the prefetching variant, whose classes and scores are the same "
+    "(test_prefetching_kernels_match_brute_force, test_density_kernel_widening_its_map_matches_brute_force[far])": [
+        "evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_19"],
+    "DensityFilter._init's coordinate dtype: int32 for uint16 from 2r rows sooner (rows = 2(h + 3r + 1)), or int64 "
+    "map positions for int32 whatever the map's length: a wider integer holds the same columns, rows and positions "
+    "(the head-group test and its twin compare modulo the dtype's width, which no coordinate then nears)": [
+        f"evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_{n}" for n in (36, 69)],
+    "row_full: L = 4 tested by the 8-lane vector (L < 4 for L <= 4), whose lanes from n = L on are masked off: "
+    "the same answer (and every stage's L = 2r + 1 is odd)": ["evstream.denoise.rowsum.x_row_full__mutmut_4"],
+    "row_full over several vectors stepping one cell (range(0, L)) for a vector's width: each test covers cells "
+    "pos + k .. pos + min(L, k + width) - 1, all of the L cells, and those from k = 0, width, 2 width .. cover "
+    "them all: the same any() (row_add's like mutant, 47, adds twice and is killed)": [
+        "evstream.denoise.rowsum.x_row_full__mutmut_49"],
+
     # session 12: denoise_baselines, denoise_learned
     "learned features' state: the word and bitmap maps padded by 3r columns for 2r (wp = width + 3r: the extra "
     "columns right of the sensor are zero, 'never fired', as the 2r padding is, and every index goes through the "

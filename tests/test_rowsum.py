@@ -131,3 +131,29 @@ def test_the_vector_intrinsics_match_their_plain_twins(dtype):
             _reference_ops(want, pos, delta, n, limit, want_full)
             assert np.array_equal(got, want), (n, pos, delta)
             assert got_full.tolist() == want_full.tolist(), (n, pos, limit)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.int64])
+def test_each_vector_op_reaches_only_its_first_lanes(dtype):
+    """Each width's add and test reach the first m = min(n, its cells, the vector's cells) cells from pos (none
+    for n <= 0), as numpy slices say here: in the mutation run the intrinsics are their plain twins
+    (tests/mutation.py), where the test above compares a twin with itself, so the twins meet a definition of
+    their own (an add of one cell for n = 0, or of n cells past a narrow vector's, must fail)."""
+    rng = np.random.default_rng(11)
+    top = int(np.iinfo(dtype).max)
+    for n in range(-1, 35):
+        for _ in range(4):
+            a = rng.integers(0, min(top, 1000) + 1, 100).astype(dtype)
+            a[rng.random(100) < 0.1] = top
+            pos, delta = int(rng.integers(0, 30)), int(rng.choice([-2, -1, 1, 3]))
+            limit = int(rng.choice([1, 5, top, int(rng.integers(0, top + 1))]))
+            got, want = a.copy(), a.copy()
+            got_full, want_full = np.zeros(4, np.bool_), np.zeros(4, np.bool_)
+            _vector_ops(got, pos, delta, n, limit, got_full)
+            reach = [max(0, min(n, cells, lanes(dtype))) for cells in (4, 8, 16, 32)]
+            for k, m in enumerate(reach):  # the adds, at pos, pos + 1, ...
+                want[pos + k : pos + k + m] = (want[pos + k : pos + k + m].astype(np.int64) + delta).astype(dtype)
+            for k, m in enumerate(reach):  # then the tests, all at pos
+                want_full[k] = bool((want[pos : pos + m].astype(np.int64) >= limit).any())
+            assert np.array_equal(got, want), (n, pos, delta)
+            assert got_full.tolist() == want_full.tolist(), (n, pos, limit)
