@@ -23,6 +23,12 @@ def shown(value) -> str:
     return repr(value)
 
 
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """A count with its noun in agreement: '1 array', '2 arrays', '1 event packet' ('wrote 1 arrays' before;
+    the commands' counts, the readers' sizes)."""
+    return f"{n:,} {noun if n == 1 else plural or noun + 's'}"
+
+
 __all__ = [
     "EVENT_DTYPE",
     "EventChunk",

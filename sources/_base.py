@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evstream.events import EventChunk, EventError, Geometry, TimestampPolicy, Validator, shown
+from evstream.events import EventChunk, EventError, Geometry, TimestampPolicy, Validator, counted, shown
 from evstream.jit import njit
 
 DEFAULT_CHUNK_EVENTS = 50_000
@@ -281,7 +281,7 @@ class FileSource:
         check_not_shrunk(self.path, self.file_size)
         self.dropped, self.reordered = check.dropped, check.reordered
         if check.dropped:
-            self.warn(f"{check.dropped} events dropped: their timestamps go back "
+            self.warn(f"{counted(check.dropped, 'event')} dropped: their timestamps go back "
                       f"(timestamp policy {self.timestamps!r})")
 
     def _emit(self, check: Validator, b: Block, next_t: int | None) -> EventChunk:
@@ -339,7 +339,7 @@ def check_not_shrunk(path: str, size_at_open: int) -> None:
     except OSError:
         raise EventError(f"{path}: the file went away while it was read: the events after that are missing") from None
     if now < size_at_open:
-        raise EventError(f"{path}: the file shrank from {size_at_open} to {now} bytes while it was read: "
+        raise EventError(f"{path}: the file shrank from {size_at_open} to {counted(now, 'byte')} while it was read: "
                          f"the events after byte {now} are missing")
 
 

@@ -17,7 +17,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from evstream.events import Geometry
+from evstream.events import Geometry, counted
 
 from ._base import Block, FileSource
 
@@ -92,7 +92,7 @@ class Aedat4Source(FileSource):
             size = int.from_bytes(head[-4:], "little") if len(head) == _HEADER_OFFSET else None
             header = f.read(min(size, 1 << 24)) if size is not None else b""
         if size is None or len(header) < size:  # the decoder said only "failed to fill whole buffer"
-            claim = "" if size is None else f" of {size} bytes"
+            claim = "" if size is None else f" of {counted(size, 'byte')}"
             raise self.error(f"truncated in its header{claim}: the file ends at byte {self.file_size}")
         self._packets_at = _HEADER_OFFSET + size
         info, self._table_at = self._header_fields(header)
@@ -160,18 +160,18 @@ class Aedat4Source(FileSource):
                 f.seek(at)
                 stream_id, n = struct.unpack("<iI", f.read(8))
                 bad = (f"stream id {stream_id} (the file has {sorted(stream_ids)})" if stream_id not in stream_ids
-                       else f"a size of {n} bytes, past the packets' end at byte {end}" if at + 8 + n > end
+                       else f"a size of {counted(n, 'byte')}, past the packets' end at byte {end}" if at + 8 + n > end
                        else None)
                 if bad is None:
                     self._packet_at.append(at)
                     previous, at, k = at, at + 8 + n, k + 1
                     continue
                 if not complete:
-                    return f"packet {k} at byte {at} claims {n} bytes; the file ends at byte {end}"
+                    return f"packet {k} at byte {at} claims {counted(n, 'byte')}; the file ends at byte {end}"
                 blame = f"; the size of packet {k - 1} at byte {previous} may be what is wrong" if k else ""
                 raise self.error(f"corrupt AEDAT4 packet header: packet {k} has {bad}{blame}", offset=at)
         if complete and at != end:
-            raise self.error(f"corrupt AEDAT4 packet header: packet {k} starts {end - at} bytes before the "
+            raise self.error(f"corrupt AEDAT4 packet header: packet {k} starts {counted(end - at, 'byte')} before the "
                              f"data table at byte {end}", offset=at)
         return ""
 
@@ -209,10 +209,11 @@ class Aedat4Source(FileSource):
             if isinstance(e, _NOT_OURS):
                 raise
             if n_packets and "fill whole buffer" in str(e):  # cut short, or a packet size that lies
-                self.warn(f"truncated after {n_packets} packets ({self._cut or e}); the events before are kept")
+                self.warn(f"truncated after {counted(n_packets, 'packet')} ({self._cut or e}); the events before "
+                          "are kept")
             else:
                 at = self._packet_at[n_packets] if n_packets < len(self._packet_at) else None
-                which = f"packet {n_packets}" if at is not None else f"after {n_packets} packets"
+                which = f"packet {n_packets}" if at is not None else f"after {counted(n_packets, 'packet')}"
                 raise self.error(f"AEDAT4 decoding failed at {which}: {_reason(e)}", offset=at) from None
         finally:
             self.counters = {f"{k}_packets_skipped": v for k, v in skipped.items()}

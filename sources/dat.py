@@ -13,7 +13,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from evstream.events import Geometry
+from evstream.events import Geometry, counted
 
 from ._base import Block, FileSource, Unwrapper, as_geometry, check_fits, fit_geometry, iter_records, read_header_lines
 
@@ -51,7 +51,7 @@ class DatSource(FileSource):
         self.event_type, self.record_bytes = ts[0], ts[1]
         self.body_offset = off + 2
         if self.record_bytes != 8:
-            raise self.error(f"DAT event size {self.record_bytes} bytes is not supported (8 is)", off + 1)
+            raise self.error(f"DAT event size {counted(self.record_bytes, 'byte')} is not supported (8 is)", off + 1)
         try:  # "% Version " with no number is as wrong as "% Version two"
             self.version = int((h.get("version", "2").split() or [""])[0])
         except ValueError:

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from evstream.events import EventError, Geometry
+from evstream.events import EventError, Geometry, counted
 
 from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
 
@@ -63,7 +63,7 @@ class Hdf5Source(FileSource):
             cut = re.search(r"truncated file: eof = (\d+), sblock->base_addr = \d+, stored_eof = (\d+)", str(e))
             if cut:  # the superblock records the file's length: say it as the other readers do
                 raise self.error(f"truncated: the file ends at byte {cut[1]}, its superblock says it is "
-                                 f"{cut[2]} bytes long") from None
+                                 f"{counted(int(cut[2]), 'byte')} long") from None
             raise self.error(f"unreadable HDF5 file: {type(e).__name__}: {e}") from None
         self.time_unit = time_unit or (unit_attr.replace("µs", "us") if unit_attr else guess_time_unit(t))
         self.t_offset_us = self._t_offset(attrs_from)

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from evstream.events import EventError, Geometry
+from evstream.events import EventError, Geometry, counted
 
 from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit
 
@@ -53,7 +53,7 @@ class _Reader:
             return first & 0xFFFF, first >> 16, pos + 4, pos + 8
         end = pos + 8 + second
         if end > len(self.data):
-            raise self.fail(pos, f"MAT element of {second} bytes runs past the end of its data (truncated?)")
+            raise self.fail(pos, f"MAT element of {counted(second, 'byte')} runs past the end of its data (truncated?)")
         return first, second, pos + 8, pos + 8 + (second + 7) // 8 * 8
 
     def array(self, pos: int, what: str) -> np.ndarray:
@@ -62,7 +62,7 @@ class _Reader:
             raise self.fail(pos, f"{what}: MAT data type {kind} is not numeric")
         dt = np.dtype(self.e + _MI[kind])
         if nbytes % dt.itemsize:
-            raise self.fail(pos, f"{what}: {nbytes} bytes is not a whole number of {dt} values")
+            raise self.fail(pos, f"{what}: {counted(nbytes, 'byte')} is not a whole number of {dt} values")
         return np.frombuffer(self.data, dt, nbytes // dt.itemsize, start)
 
     def matrix(self, pos: int, end: int):
@@ -81,7 +81,7 @@ class _Reader:
         values = self.array(pos, f"variable {name!r}")
         shape = tuple(int(d) for d in dims)
         if int(np.prod(shape)) != len(values):
-            raise self.fail(pos, f"variable {name!r}: {len(values)} values for dimensions {shape}")
+            raise self.fail(pos, f"variable {name!r}: {counted(len(values), 'value')} for dimensions {shape}")
         return name, values.reshape(shape, order="F")
 
 
@@ -90,7 +90,7 @@ def read_variables(path: str) -> dict:
     with builtins.open(path, "rb") as f:
         data = f.read()
     if len(data) < 128:
-        raise EventError(f"{path}: MAT header is {len(data)} bytes, 128 expected (truncated)")
+        raise EventError(f"{path}: MAT header is {counted(len(data), 'byte')}, 128 expected (truncated)")
     endian = "<" if data[126:128] == b"IM" else ">"
     out = {}
     pos = 128

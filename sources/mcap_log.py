@@ -25,7 +25,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 from evstream.codecs.event_packet import DATATYPE, PacketError, decode_packet
 from evstream.codecs.packets import PacketDecoder
-from evstream.events import EventChunk, EventError, Geometry, NoiseClass, Validator
+from evstream.events import EventChunk, EventError, Geometry, NoiseClass, Validator, counted
 
 from ._base import MAX_SENSOR_SIDE, EventWarning
 
@@ -120,7 +120,8 @@ MAX_CHUNK_RATIO = 32_768
 
 def _check_chunk_size(rec: Chunk) -> None:
     if rec.uncompressed_size > max(MAX_CHUNK_BYTES, MAX_CHUNK_RATIO * len(rec.data)):
-        raise ValueError(f"its {len(rec.data)} compressed bytes claim {rec.uncompressed_size} bytes")
+        raise ValueError(f"its {counted(len(rec.data), 'compressed byte')} claim "
+                         f"{counted(rec.uncompressed_size, 'byte')}")
 
 
 def _reason(e: Exception) -> str:
@@ -284,7 +285,8 @@ class McapLogSource:
             self.truncated = True
             warnings.warn(
                 f"{self.path}: stopped at byte {scan.stopped_at} ({scan.reason}); recovered "
-                f"{self.recovered_messages} event packets ({self.recovered_events} events) before it",
+                f"{counted(self.recovered_messages, 'event packet')} "
+                f"({counted(self.recovered_events, 'event')}) before it",
                 TruncatedFileWarning, stacklevel=2)
 
 

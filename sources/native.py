@@ -31,7 +31,7 @@ from collections.abc import Iterable, Iterator
 import numpy as np
 from zlib_ng import zlib_ng
 
-from evstream.events import EventChunk, EventError, Geometry, Validator, concat
+from evstream.events import EventChunk, EventError, Geometry, Validator, concat, counted
 
 from . import npy_stream, npz_writer
 from ._base import GEOMETRY_FLAGS, MAX_SENSOR_SIDE, check_not_shrunk
@@ -211,14 +211,16 @@ class NativeSource:
         step = int(row[1]) if len(row) > 1 else max(n, 1)
         if step <= 0 or not np.array_equal(row, np.arange(len(row), dtype=np.int64) * step) or not (
                 (len(row) - 1) * step < max(n, 1) <= len(row) * step):
-            raise ValueError(f"array 'seek': its {len(row)} blocks do not cover the {n} events in equal runs")
+            raise ValueError(f"array 'seek': its {counted(len(row), 'block')} do not cover the "
+                             f"{counted(n, 'event')} in equal runs")
         t_min, t_max = index["t_min"], index["t_max"]
         if np.any(t_min > t_max) or np.any(t_max[:-1] > t_min[1:]):
             raise ValueError("array 'seek': its blocks' times are not in order")
         for c in self._column_names():
             at, size = index[f"{c}_at"], self._infos[c].compress_size
             if at[0] != 0 or np.any(at[1:] <= at[:-1]) or at[-1] >= size:
-                raise ValueError(f"array 'seek': the blocks of {c!r} do not start inside its {size} bytes, rising")
+                raise ValueError(f"array 'seek': the blocks of {c!r} do not start inside its "
+                                 f"{counted(size, 'byte')}, rising")
 
     def _flush_points_at(self, index: np.ndarray, k: int) -> bool:
         """Whether block k of every column starts at a flush point of its deflate stream: the 4 bytes

@@ -21,6 +21,8 @@ from collections.abc import Iterator
 import numpy as np
 from zlib_ng import zlib_ng
 
+from evstream.events import counted
+
 MAX_HEADER_BYTES = 1 << 20  # npy 2.0/3.0 headers; 1.0 headers stop at 65,535 bytes by format
 MAX_DEFLATE_RATIO = 1032  # deflate's best case (runs of one byte): more is not a deflate stream
 READ_BYTES = 1 << 18  # compressed bytes handed to the inflater at a time
@@ -46,7 +48,7 @@ def parse_header(head: bytes) -> tuple[tuple[int, ...], bool, np.dtype, int]:
     if size > MAX_HEADER_BYTES:
         raise ValueError(f".npy header of {size} bytes: more than any array needs ({MAX_HEADER_BYTES})")
     if len(head) < start + size:
-        raise ValueError(f"cut short in its .npy header ({size} bytes from byte {start})")
+        raise ValueError(f"cut short in its .npy header ({counted(size, 'byte')} from byte {start})")
     try:
         text = head[start:start + size].decode("utf-8" if major == 3 else "latin-1")
         d = ast.literal_eval(text)
@@ -89,7 +91,7 @@ class Member:
             raise ValueError(f"zip compression method {info.compress_type} (numpy writes stored or deflated)")
         if not 0 <= info.header_offset <= file_size - 30:
             raise ValueError(f"its local zip header at byte {info.header_offset} lies outside the file "
-                             f"({file_size} bytes)")
+                             f"({counted(file_size, 'byte')})")
         with builtins.open(self.path, "rb") as f:
             f.seek(info.header_offset)
             local = f.read(30)
@@ -100,10 +102,12 @@ class Member:
         if self.start + info.compress_size > file_size:
             raise ValueError(f"cut short at byte {file_size} (it ends at byte {self.start + info.compress_size})")
         if info.compress_type == zipfile.ZIP_STORED and info.file_size != info.compress_size:
-            raise ValueError(f"{self.where}: a stored member of {info.compress_size} bytes claims {info.file_size}")
+            raise ValueError(f"{self.where}: a stored member of {counted(info.compress_size, 'byte')} "
+                             f"claims {info.file_size}")
         if info.compress_type == zipfile.ZIP_DEFLATED and info.file_size > MAX_DEFLATE_RATIO * max(
                 info.compress_size, 1) + 64:
-            raise ValueError(f"{self.where}: {info.compress_size} compressed bytes claim {info.file_size} bytes, "
+            raise ValueError(f"{self.where}: {counted(info.compress_size, 'compressed byte')} claim "
+                             f"{counted(info.file_size, 'byte')}, "
                              f"more than deflate can pack ({MAX_DEFLATE_RATIO}:1): damaged, or a zip bomb")
         stream = _MemberBytes(self.path, self.start, info, f"array {self.array!r}: ")
         head = stream.read(min(info.file_size, 12))  # the header and no more: a seek inflates nothing else
@@ -118,7 +122,7 @@ class Member:
         self.count = math.prod(self.shape)
         if self.offset + self.count * self.dtype.itemsize != info.file_size:
             raise ValueError(f"its header says {self.shape} of {self.dtype}, its data is "
-                             f"{info.file_size - self.offset} bytes")
+                             f"{counted(info.file_size - self.offset, 'byte')}")
         self._stream = stream
         self._file = stream.f
         self._head = head[self.offset:]  # data bytes already read
@@ -251,7 +255,7 @@ class _MemberBytes:
                     break
         self.size += len(out)
         if self.size > self.info.file_size:
-            raise self._fail(f"inflate to more than the {self.info.file_size} bytes the zip says")
+            raise self._fail(f"inflate to more than the {counted(self.info.file_size, 'byte')} the zip says")
         if self.blocks is None:
             self.crc = zlib_ng.crc32(out, self.crc)
             return out

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from evstream.events import EventError, Geometry
+from evstream.events import EventError, Geometry, counted
 
 from . import npy_stream
 from ._base import Block, FileSource, find_fields, fit_geometry, guess_columns, guess_time_unit, to_events
@@ -115,8 +115,9 @@ class NumpySource(FileSource):
                 return np.zeros(shape, dtype)
             return np.memmap(self.path, dtype, "r", start, shape, order="F" if fortran else "C")
         rows = (self.file_size - start) // row_bytes
-        self.warn(f"truncated: the header promises {shape[0]} rows ({want} bytes) but the file ends at byte "
-                  f"{self.file_size}; the {rows} whole rows before byte {start + rows * row_bytes} are kept")
+        self.warn(f"truncated: the header promises {counted(shape[0], 'row')} ({want} bytes) but the file "
+                  f"ends at byte {self.file_size}; kept: the {counted(rows, 'whole row')} before byte "
+                  f"{start + rows * row_bytes}")
         if rows == 0:
             return np.zeros((0, *shape[1:]), dtype)
         return np.memmap(self.path, dtype, "r", start, (rows, *shape[1:]))

@@ -493,9 +493,9 @@ def test_npy_cut_short_warns_naming_the_byte_and_keeps_the_whole_rows(tmp_path, 
     rc, out, err = run(capsys, "convert", bad, tmp_path / "out.h5")
     assert rc == 0, err
     line = one_line_error(err)
-    assert line == (f"evstream: warning: {bad}: truncated: the header promises {len(full)} rows ({len(data)} "
-                    f"bytes) but the file ends at byte {cut}; the {rows} whole rows before byte "
-                    f"{start + rows * full.dtype.itemsize} are kept")
+    assert line == (f"evstream: warning: {bad}: truncated: the header promises {len(full):,} rows ({len(data)} "
+                    f"bytes) but the file ends at byte {cut}; kept: the {rows:,} whole rows before byte "
+                    f"{start + rows * full.dtype.itemsize}")
     got = independent(tmp_path / "out.h5")
     np.testing.assert_array_equal(got, np.column_stack([full[k][:rows].astype(np.int64) for k in "txyp"]))
 
@@ -545,7 +545,7 @@ def test_aedat4_cut_in_its_header_says_truncated(tmp_path, real_data, cut):
     rc, _, err = cli("info", bad)
     assert rc == 1
     line = one_line_error(err)
-    size = " of 3104 bytes" if cut >= 18 else ""
+    size = " of 3,104 bytes" if cut >= 18 else ""
     assert line == f"evstream: error: {bad}: truncated in its header{size}: the file ends at byte {cut}"
 
 
@@ -560,7 +560,7 @@ def test_hdf5_cut_short_says_truncated_and_where(tmp_path, real_data, capsys, fr
     rc, _, err = run(capsys, "info", bad)
     assert rc == 1
     assert one_line_error(err) == (f"evstream: error: {bad}: truncated: the file ends at byte {cut}, its superblock "
-                             f"says it is {len(data)} bytes long")
+                             f"says it is {len(data):,} bytes long")
 
 
 # -- not a recording at all ------------------------------------------------------------------------------

@@ -320,7 +320,7 @@ def test_truncated_archive_recovers_every_complete_chunk(tmp_path):
         part = tmp_path / f"cut{k}.mcap"
         part.write_bytes(data[:cut])
         n_msgs = sum(m for e, m in chunks if e <= cut)
-        with pytest.warns(mcap_log.TruncatedFileWarning, match=f"recovered {n_msgs} event packets"):
+        with pytest.warns(mcap_log.TruncatedFileWarning, match=f"recovered {n_msgs:,} event packets"):
             src = open_source(part)
             got = concat(list(src))
         assert src.truncated and src.recovered_messages == n_msgs

@@ -115,7 +115,7 @@ def test_sigkill_loses_at_most_the_chunk_in_progress(recording, tmp_path):
     with open(part, "rb") as f:
         assert f.read()[-8:] != mcap_log.MAGIC  # no footer: the writer never finished
     in_chunks = sum(_complete_chunks(part))
-    with pytest.warns(mcap_log.TruncatedFileWarning, match=f"recovered {in_chunks} event packets"):
+    with pytest.warns(mcap_log.TruncatedFileWarning, match=f"recovered {in_chunks:,} event packets"):
         src = open_source(part)
         got = concat(list(src))
     assert src.recovered_messages == in_chunks > 0

@@ -522,6 +522,27 @@ def test_iter_records_yields_whole_records_and_warns_about_a_partial_one(tmp_pat
                                                                           (1024, 3078), (1024, 4102)]
 
 
+def test_the_readers_counts_agree_with_their_nouns(tmp_path):
+    """A count of one in a reader's message is singular ('1 events dropped', 'MAT header is 1 bytes' before;
+    the commands' own counts were fixed in session 12), and the others plural."""
+    from evstream.sources import matlab, npy_stream
+
+    t, z = np.array([5, 4, 6], np.int64), np.zeros(3, np.uint16)
+    src = source(tmp_path, [Block(t, z, z, z.astype(np.uint8), 0, 30, 5)], 30, timestamps="drop")
+    with pytest.warns(EventWarning, match=rf"^{re.escape(src.path)}: 1 event dropped: their timestamps go back "):
+        list(src)
+    path = tmp_path / "one.bin"
+    path.write_bytes(b"1")
+    with pytest.raises(EventError, match=rf"^{re.escape(str(path))}: the file shrank from 2 to 1 byte while it was "):
+        check_not_shrunk(str(path), 2)
+    with pytest.raises(EventError, match=rf"^{re.escape(str(path))}: MAT header is 1 byte, 128 expected "):
+        matlab.read_variables(str(path))
+    with pytest.raises(ValueError, match=r"^cut short in its \.npy header \(1 byte from byte 10\)$"):
+        npy_stream.parse_header(b"\x93NUMPY\x01\x00\x01\x00")
+    with pytest.raises(ValueError, match=r"^cut short in its \.npy header \(2 bytes from byte 10\)$"):
+        npy_stream.parse_header(b"\x93NUMPY\x01\x00\x02\x00")
+
+
 def test_a_file_that_shrinks_or_goes_away_while_read_is_an_error(tmp_path):
     path = tmp_path / "r.bin"
     path.write_bytes(b"12345")

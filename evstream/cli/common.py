@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from .. import api
-from ..events import NoiseClass
+from ..events import NoiseClass, counted  # noqa: F401 - counted: the commands import it from here
 from ..framing import options as framer_options
 from ..pipeline import Pipeline, RunStats, kinds
 
@@ -253,11 +253,6 @@ def first_missing(folder) -> str:
             break
         missing = str(f)
     return missing
-
-
-def counted(n: int, noun: str, plural: str | None = None) -> str:
-    """A count with its noun in agreement: '1 array', '2 arrays', '1 event packet' ('wrote 1 arrays' before)."""
-    return f"{n:,} {noun if n == 1 else plural or noun + 's'}"
 
 
 def folder_note(made: str) -> str:
