@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from numba import njit
 
 from evstream.denoise.learned import FEATURES, LearnedFilter, Model, ModelError, load
 from evstream.denoise.learned.features import (
@@ -25,6 +24,7 @@ from evstream.denoise.learned.model import DEFAULT_MODEL
 from evstream.denoise.learned.neighbours import WORD_TAIL, nb8_support, reference_nb8
 from evstream.denoise.learned.train import KEEP_GRID, features_of
 from evstream.events import Geometry, NoiseClass
+from evstream.jit import njit
 from evstream.noise import NoiseSpec, inject
 from evstream.pipeline import build
 from evstream.synth import scene
