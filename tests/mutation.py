@@ -654,15 +654,29 @@ PLAIN_TWINS = {"nb8_support": "from .neighbours import reference_nb8 as _nb8_twi
                "_head_group": "_head_group = reference_head_group\n"}
 
 
-def plain_kernels(source: str, keep: set[str] = frozenset()) -> str:
+# Compiled helpers of modules a target does not mutate, which its plain kernels would call through numba's
+# dispatcher (~1 us a call: a quarter of the learned features' plain kernel's time, session 12), bound instead
+# in the target's mutated files to their plain form: `ix`'s own Python body (`np.uintp(i)`: a negative index
+# fails as it does through the dispatcher), and `prefetch` as nothing (a hint: it changes no result). Only
+# where no kernel of the file stays compiled to call it (numba would find a Python function), and per target,
+# so that the other targets' copies (and their verdicts) stay as they are.
+PLAIN_HELPERS = {"denoise_learned": {"ix": "ix = ix.py_func\n", "prefetch": "prefetch = lambda a, i: None\n"}}
+
+
+def plain_kernels(source: str, keep: set[str] = frozenset(), helpers: dict[str, str] | None = None) -> str:
     """`source` with its numba kernels as plain Python: `@njit` lines removed (kept on functions calling
     an `@intrinsic`: numba-only, and on those named in `keep`), and every `functools.cache` / `lru_cache`
-    (see the module's doc); a plain kernel calling an intrinsic of PLAIN_TWINS calls its twin."""
+    (see the module's doc); a plain kernel calling an intrinsic of PLAIN_TWINS calls its twin, and one
+    calling a compiled helper of `helpers` (name -> the line binding its plain form: PLAIN_HELPERS) calls
+    its plain form, unless a kernel still compiled calls it too."""
     tree = ast.parse(source)
     intrinsics = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and _is_intrinsic(f)}
     intrinsics -= set(PLAIN_TWINS)
+    helpers = helpers or {}
     drop: set[int] = set()
     twins: set[str] = set()
+    plain_calls: set[str] = set()
+    compiled_calls: set[str] = set()
     for f in ast.walk(tree):
         if not isinstance(f, ast.FunctionDef):
             continue
@@ -671,9 +685,14 @@ def plain_kernels(source: str, keep: set[str] = frozenset()) -> str:
             if (_is_njit(dec) and not calls & intrinsics and f.name not in keep) or _is_cache(dec):
                 drop.update(range(dec.lineno - 1, dec.end_lineno))  # the `@` is on dec.lineno
                 twins |= calls & set(PLAIN_TWINS) if _is_njit(dec) else set()
+                plain_calls |= calls if _is_njit(dec) else set()
+            elif _is_njit(dec):
+                compiled_calls |= calls
     lines = source.splitlines(keepends=True)
     return "".join(line for i, line in enumerate(lines) if i not in drop) + "".join(
-        "# tests/mutation.py: the intrinsic's plain twin\n" + PLAIN_TWINS[name] for name in sorted(twins))
+        "# tests/mutation.py: the intrinsic's plain twin\n" + PLAIN_TWINS[name] for name in sorted(twins)) + "".join(
+        "# tests/mutation.py: the compiled helper's plain form\n" + helpers[name]
+        for name in sorted((plain_calls - compiled_calls) & set(helpers)))
 
 
 def package_sources() -> dict[str, str]:
@@ -692,7 +711,7 @@ def plain_sources(name: str, sources: dict[str, str] | None = None) -> dict[str,
     sources = sources or package_sources()
     mutated = {path for pattern in TARGETS[name][0] for path in fnmatch.filter(sources, pattern)}
     keep = kept_compiled(sources, mutated)
-    return {path: plain_kernels(sources[path], keep) for path in sorted(mutated)}
+    return {path: plain_kernels(sources[path], keep, PLAIN_HELPERS.get(name)) for path in sorted(mutated)}
 
 
 def _source_of(copy_path: str) -> Path:
@@ -1140,7 +1159,12 @@ def worker(name: str) -> int:
     with open(ws / "inproc.json", "a") as out:
         for mutant in todo:
             fn = mutant.partition("__mutmut_")[0]
-            tests = sorted(base.reach.get(fn) or base.cpu, key=base.cpu.get)
+            if fn not in base.reach:  # no test reaches it: none can kill it, so no need to run them all
+                out.write(json.dumps({"mutant": mutant, "status": "no tests", "tests": 0, "reached": False,
+                                      "failed": [], "cpu_s": 0.0, "at": time.strftime("%H:%M:%S")}) + "\n")
+                out.flush()
+                continue
+            tests = sorted(base.reach[fn], key=base.cpu.get)
             running(mutant=mutant, rss_mb=rss_mb)
             rec, timed_out[:] = Record(limits, mutant, rss_mb), []
             os.environ["MUTANT_UNDER_TEST"] = mutant

@@ -249,3 +249,63 @@ def test_a_sample_runs_in_the_order_drawn_so_a_run_cut_short_is_a_smaller_sample
         assert mutation.sampled(names, large)[:small] == mutation.sampled(names, small)
     first = mutation.sampled(names, 200)[:60]
     assert len({m.split(".")[1] for m in first}) > 3 and first != sorted(first, key=names.index)
+
+
+def test_a_mutant_of_a_function_no_test_reaches_is_no_tests_at_once(tmp_path):
+    """The worker runs a mutant against the tests its clean run saw reach the mutated function. One that no
+    test reaches is 'no tests' (a survivor in the score) without running any: no test can kill it, and running
+    them all cost a learned mutant the whole selection (~3 min of CPU). A real worker, on a toy module whose
+    functions record their calls (in mutmut's stats mode) and misbehave as mutant 1, as mutmut's trampoline does."""
+    mutants = tmp_path / "mutants"
+    mutants.mkdir()
+    (mutants / "toy.py").write_text(textwrap.dedent("""
+        import os
+
+        from mutmut.mutation import trampoline
+
+
+        def _mutated(fn):
+            if os.environ.get("MUTANT_UNDER_TEST") == "stats":
+                trampoline.record_trampoline_hit(fn)
+            return os.environ.get("MUTANT_UNDER_TEST") == fn + "__mutmut_1"
+
+
+        def f(x):
+            return x + 2 if _mutated("toy.x_f") else x + 1
+
+
+        def g(x):
+            return x - 2 if _mutated("toy.x_g") else x - 1
+    """))
+    (mutants / "test_toy.py").write_text("import toy\n\n\ndef test_f():\n    assert toy.f(1) == 2\n\n\n"
+                                         "def test_f_again():\n    assert toy.f(0) == 1\n")
+    (tmp_path / "inproc.todo").write_text("toy.x_g__mutmut_1\ntoy.x_f__mutmut_1\n")
+    code = (f"import sys; sys.path.insert(0, {str(mutation.ROOT / 'tests')!r}); import mutation; "
+            "mutation.TARGETS['toy'] = ([], ['test_toy.py']); sys.exit(mutation.worker('toy'))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=mutants, capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
+    verdicts = mutation._verdicts(tmp_path / "inproc.json")
+    assert verdicts["toy.x_g__mutmut_1"]["status"] == "no tests" and verdicts["toy.x_g__mutmut_1"]["tests"] == 0
+    assert verdicts["toy.x_f__mutmut_1"]["status"] == "killed" and verdicts["toy.x_f__mutmut_1"]["tests"] == 2
+    assert mutation.score({m: v["status"] for m, v in verdicts.items()})["counts"] == {"killed": 1, "no tests": 1}
+
+
+def test_a_plain_kernel_calls_the_plain_form_of_a_compiled_helper_where_its_target_asks():
+    """PLAIN_HELPERS: in the learned target's copy the features' plain kernel calls `ix`'s own Python body and
+    skips `prefetch` (a hint), not numba's dispatcher (~1 us a call); not where a kernel of the file stays
+    compiled (numba would meet a Python function), and not in the other targets' copies."""
+    helpers = {"ix": "ix = ix.py_func\n"}
+    plain = mutation.plain_kernels("@njit\ndef k(a, i):\n    return a[ix(i)]\n", helpers=helpers)
+    assert "@njit" not in plain and plain.endswith("ix = ix.py_func\n")
+    kept = mutation.plain_kernels("@njit\ndef k(a, i):\n    return a[ix(i)]\n\n"
+                                  "@njit\ndef c(a, i):\n    return a[ix(i)]\n", keep={"c"}, helpers=helpers)
+    assert kept.count("@njit") == 1 and "py_func" not in kept
+    features = mutation.plain_sources("denoise_learned")[mutation.DENOISE + "learned/features.py"]
+    assert features.endswith("ix = ix.py_func\n# tests/mutation.py: the compiled helper's plain form\n"
+                             "prefetch = lambda a, i: None\n") and "@njit" not in features
+    space = {}
+    exec("from evstream.nowrap import ix\nix = ix.py_func\n", space)
+    assert space["ix"](5) == 5 and not hasattr(space["ix"], "py_func")
+    sources = mutation.package_sources()
+    assert all("py_func" not in src for name in mutation.TARGETS if name != "denoise_learned"
+               for src in mutation.plain_sources(name, sources).values())
