@@ -197,6 +197,9 @@ def from_camera_info(path: str | os.PathLike) -> CameraModel:
         raise ValueError(f"{where}: is a folder, not a camera_info file") from None
     except FileNotFoundError:
         raise ValueError(f"{where}: no such camera_info file") from None
+    except UnicodeDecodeError as e:  # a binary file given by mistake (a recording, a .npz); was Python's codec line
+        raise ValueError(f"{where}: not a ROS camera_info file (not UTF-8 text: byte 0x{e.object[e.start]:02x} at "
+                         f"offset {e.start})") from None
     if not isinstance(doc, dict) or "camera_matrix" not in doc:
         raise ValueError(f"{where}: not a ROS camera_info file (no camera_matrix)")
     K = _matrix(doc, "camera_matrix", 3, 3, where)

@@ -3,6 +3,7 @@ lookup table against plain Python, ROS camera_info reading, and the stage with t
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2  # opencv-python-headless, a dev dependency: the reference for the camera models (missing: a failure)
@@ -164,8 +165,18 @@ def test_bad_calibrations_are_one_line_errors(tmp_path):
         build("stage", {"kind": "undistort", "fx": 1.0})
     other = tmp_path / "vga.yaml"
     other.write_text(CAMERA_INFO.replace("image_width: 346", "image_width: 640"))
-    with pytest.raises(ValueError, match="calibrated at 640x260, the events come from a 346x260 sensor"):
+    with pytest.raises(ValueError, match="^" + re.escape(f"undistort: the camera ({other}) was calibrated at "
+                                                         "640x260, the events come from a 346x260 sensor") + "$"):
         build("stage", {"kind": "undistort", "camera_info": str(other)})(random_stream(1, 10, DAVIS))
+
+
+def test_a_binary_file_as_camera_info_is_one_line(tmp_path):
+    """A recording given as camera_info said Python's "'utf-8' codec can't decode byte 0x93 in position 0"."""
+    rec = tmp_path / "rec.npy"
+    np.save(rec, np.arange(4))
+    with pytest.raises(ValueError, match="^" + re.escape(f"{rec}: not a ROS camera_info file (not UTF-8 text: byte "
+                                                         "0x93 at offset 0)") + "$"):
+        from_camera_info(rec)
 
 
 def undistorter():

@@ -93,7 +93,8 @@ class Undistort(Transform):
     def out_geometry(self, geometry: Geometry) -> Geometry:
         c = self.camera
         if c.width is not None and c.height is not None and (c.width, c.height) != (geometry.width, geometry.height):
-            raise ValueError(f"undistort: the camera was calibrated at {c.width}x{c.height}, the events come "
+            of = f" ({self.camera_info})" if self.camera_info is not None else ""
+            raise ValueError(f"undistort: the camera{of} was calibrated at {c.width}x{c.height}, the events come "
                              f"from a {geometry} sensor")
         return geometry
 
