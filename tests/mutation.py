@@ -579,6 +579,24 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "event (j == tail) for the next window: an empty array, zero when emitted, dropped by _forget when passed": [
         f"evstream.framing.overlap.xǁSlidingFramerǁ_close__mutmut_{n}" for n in (15, 28, 43)],
 
+    # session 13: codecs
+    "Evt3Encoder's first scratch of float64 (np.empty's default) or of 1 word: a call with events asks for 4 "
+    "words an event plus the ramp (never below 0), so `encode` replaces it (uint16) before any use; a call with "
+    "none returns before it": [
+        f"evstream.codecs.evt3.xǁEvt3Encoderǁ__init____mutmut_{n}" for n in (18, 20, 21)],
+    "Evt3Encoder.encode: the ramp floored at 1 for 0: in a call the kernel writes, t_last >= last_t, so wraps "
+    ">= 0 and the ramp is 5 + 2 or more; it is below 1 only in a call going back in time, which the kernel "
+    "refuses before writing a word (the scratch then one word longer, never read)": [
+        "evstream.codecs.evt3.xǁEvt3Encoderǁencode__mutmut_50"],
+    "Evt3Encoder.encode: `k <= 0` or `k < 1` for `k < 0`: the kernel is called with one event or more (none "
+    "returns before it) and writes at least that event's word when it accepts them, so k is never 0": [
+        f"evstream.codecs.evt3.xǁEvt3Encoderǁencode__mutmut_{n}" for n in (93, 94)],
+    "Evt3Encoder.encode: t without its dtype (ascontiguousarray(t, None)): as plain Python, how this copy runs "
+    "the kernel, times of any integer dtype give the same words (uint64 - int64 is float64 in NumPy, exact "
+    "below 2^53 µs). Not equivalent in the program: compiled, uint64 times do not type (float64 >> 12), which "
+    "test_encoder_takes_any_integer_dtype_and_names_the_last_call_s_time catches (seen failing with it written "
+    "by hand, compiled); named here only because the plain copy cannot show it": [
+        f"evstream.codecs.evt3.xǁEvt3Encoderǁencode__mutmut_{n}" for n in (3, 5)],
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 

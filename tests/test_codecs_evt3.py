@@ -434,6 +434,49 @@ def test_encoder_messages_say_what_is_wrong():
             evt3.encode(**ev)
 
 
+def test_encoder_takes_any_integer_dtype_and_names_the_last_call_s_time():
+    """Times and coordinates of any integer dtype give the same words (uint64 times: the encoder works in
+    int64); a call whose first event goes back before the previous call's last names that time."""
+    t, x, y, p = [64, 64, 127, 5000], [0, 2047, 3, 4], [5, 6, 2047, 0], [0, 1, 1, 0]
+    ev = np.array(t, np.int64), np.array(x, np.uint16), np.array(y, np.uint16), np.array(p, np.uint8)
+    want = evt3.encode(*ev)
+    assert_events_equal(evt3.decode(want), ev)
+    for wide in ((np.array(t, np.uint64), np.array(x, np.int64), np.array(y, np.int32), np.array(p, np.int16)),
+                 (np.array(t, np.uint32), *(np.array(a, np.uint64) for a in (x, y, p)))):
+        assert evt3.encode(*wide) == want
+    enc = evt3.Evt3Encoder()
+    enc.encode(*ev)
+    with pytest.raises(ValueError, match=r"^encode: event 4 \(t=4999 µs, previous 5000 µs, x=1, y=2, p=0\) "):
+        enc.encode(np.array([4999, 6000]), np.array([1, 1]), np.array([2, 2]), np.array([0, 0]))
+
+
+def test_encoder_word_buffer_is_each_call_s_worst_case_and_is_kept():
+    """The buffer the encoder writes into is grown to a call's worst case (4 words an event and the TIME_HIGH
+    steps from the last call's time, as the packets' `packet_room` less their opening word) when it is
+    shorter, and otherwise kept, the same array (no fresh pages per call). A larger estimate gives the same
+    words, a smaller one may not fit: only its length shows either."""
+    rng = np.random.default_rng(21)
+    far = 40 * WRAP + 7
+    calls = [[5, 9], [20, 30],  # the second needs exactly the first's room: kept
+             [far],  # 40 wraps from 30 µs
+             np.sort(rng.integers(far, 42 * WRAP + 5, 100)),  # 100 events over 2 wraps from 40 wraps on
+             [42 * WRAP + 6] * 3]
+    enc, last_t, sent = evt3.Evt3Encoder(), 0, []
+    for t in calls:
+        t = np.asarray(t, np.int64)
+        ev = (t, rng.integers(0, 2048, len(t)).astype(np.uint16), rng.integers(0, 2048, len(t)).astype(np.uint16),
+              rng.integers(0, 2, len(t)).astype(np.uint8))
+        before = enc._scratch
+        room = packet_room(t, 0, len(t), last_t >> 12) - 1
+        data = enc.encode(*ev)
+        assert len(enc._scratch) == max(len(before), room) and (enc._scratch is before) == (len(before) >= room)
+        assert len(data) // 2 <= room
+        sent.append((data, ev))
+        last_t = int(t[-1])
+    assert_events_equal(evt3.decode(b"".join(d for d, _ in sent)),
+                        tuple(np.concatenate([e[i] for _, e in sent]) for i in range(4)))
+
+
 def test_encoder_takes_the_largest_jump_it_allows():
     """MAX_WRAPS_PER_CALL wraps of the clock in one call are written (and decode back); one more is refused."""
     t = np.array([5, evt3.MAX_WRAPS_PER_CALL * WRAP + 5], np.int64)
