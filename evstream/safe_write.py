@@ -366,9 +366,22 @@ class AtomicFolder:
     def __enter__(self) -> Path:
         return self.part
 
+    def failed(self, e: BaseException) -> BaseException:
+        """After an error: the temporary folder removed; the error to raise (a full disk said of the target
+        folder, not of a file in the temporary one, which is gone)."""
+        self.discard()
+        if not is_no_space(e):
+            return e
+        error = OSError(f"{self.target}: no space left on the device; nothing written there (what the folder "
+                        "held is left as it was)")
+        error.errno = errno.ENOSPC
+        return error
+
     def __exit__(self, kind, e, tb) -> bool:
         if e is None:
             self.commit()
-        else:
-            self.discard()
+            return False
+        raised = self.failed(e)
+        if raised is not e:
+            raise raised from None
         return False

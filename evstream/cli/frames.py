@@ -47,10 +47,11 @@ def frames_one(args, stop: TaskStop | None = None) -> list[dict]:
     try:
         for kind in kinds_:
             rows.append(_frame_with(kind, args, staging.part if staging else None, len(kinds_) > 1, stop))
-    except BaseException:
-        if staging is not None:
-            staging.discard()
-        raise
+    except BaseException as e:
+        raised = staging.failed(e) if staging is not None else e  # a full disk: said of OUT, not OUT.part/...
+        if raised is e:
+            raise
+        raise raised from None
     if staging is not None:
         staging.commit()
         rows[0]["created_folder"] = created or None  # said once, with the first framer's files

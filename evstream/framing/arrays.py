@@ -15,13 +15,13 @@ import numpy as np
 
 
 def save_representation(path: str | os.PathLike, rep) -> None:
-    """One representation as an .npz at `path`, written whole (temporary name, then rename)."""
-    path = Path(path)
-    part = path.with_name(path.name + ".part")
-    with open(part, "wb") as f:
+    """One representation as an .npz at `path`, written whole (temporary name, then rename: `safe_write`); a
+    full disk is one OSError naming it (was Python's "[Errno 28] No space left on device", no file named)."""
+    from ..safe_write import AtomicOutput
+
+    with AtomicOutput(path, sync=False) as part, open(part, "wb") as f:
         np.savez(f, data=rep.data, t_start_us=np.int64(rep.t_start), t_end_us=np.int64(rep.t_end),
                  n_events=np.int64(rep.n_events), kind=np.array(rep.kind), channels=np.array(list(rep.channels)))
-    os.replace(part, path)
 
 
 class ArrayWriter:
