@@ -224,8 +224,9 @@ def set_params(spec: dict[str, Any], settings: Iterable[str], role: str = "stage
 
 # -- running stages on events ---------------------------------------------------------------------
 def batches(pipe: Pipeline, chunks: Iterable[EventChunk]) -> Iterator[Batch]:
-    """Drive `chunks` through `pipe`, one `Batch` (classified events, new frames, stats) per chunk, then
-    one with the frames the end of the stream closes. `Pipeline.run` does the same into sinks. Each call is
+    """Drive `chunks` through `pipe`, one `Batch` (classified events, new frames, stats) per chunk, or per
+    piece of one whose frames would take more than `pipe.frames_bytes` at once (`Pipeline.feed`), then one
+    with the frames the end of the stream closes. `Pipeline.run` does the same into sinks. Each call is
     one stream: a pipeline that ran before starts it afresh, as built (`Pipeline.restart`), so the same
     pipeline given the next recording, or a notebook cell run again, gives what a new pipeline gives."""
     if pipe.used:
@@ -233,7 +234,7 @@ def batches(pipe: Pipeline, chunks: Iterable[EventChunk]) -> Iterator[Batch]:
     geometry = getattr(chunks, "geometry", None)
     for chunk in chunks:
         geometry = chunk.geometry
-        yield pipe.process(chunk)
+        yield from pipe.feed(chunk)
     if geometry is not None:
         yield pipe.finish(geometry)
 

@@ -2,8 +2,10 @@
 
 A source yields `EventChunk`s; each stage maps a chunk to a chunk (denoise stages write `cls`, they
 never drop); an optional framer turns events into `Frame`s; every sink receives one `Batch` per
-source chunk. Stages and framers hold their own state and must be chunk-invariant, causal and
-bounded in memory (see `evstream.testing`).
+source chunk, or per piece of one: a chunk from which the framer would close more frames than
+`Pipeline.frames_bytes` hold is handed to it in pieces (`framing.bound`), one batch each. Stages and
+framers hold their own state and must be chunk-invariant, causal and bounded in memory (see
+`evstream.testing`).
 """
 
 from __future__ import annotations
@@ -68,7 +70,8 @@ class Sink(Protocol):
 @dataclass
 class RunStats:
     """Counts of a run so far: events in, events per assigned class, frames, time covered.
-    `events_in` counts the events leaving the stages; `events_dropped` those transforms dropped."""
+    `events_in` counts the events leaving the stages; `events_dropped` those transforms dropped; `chunks`
+    the chunks given (a chunk in pieces counts once)."""
 
     events_in: int = 0
     events_dropped: int = 0
@@ -80,7 +83,7 @@ class RunStats:
     wall_s: float = 0.0
 
     def add(self, chunk: EventChunk, n_frames: int) -> None:
-        self.chunks += 1
+        """The events leaving the stages (a chunk or a piece of one) and the frames they closed."""
         self.frames += n_frames
         if not len(chunk):
             return
@@ -129,7 +132,8 @@ _UNCOPIED = ("uncopied",)  # Pipeline._built when the stages could not be copied
 
 @dataclass
 class Batch:
-    """What sinks receive for each source chunk: its classified events, new frames, stats so far."""
+    """What sinks receive for each source chunk, or each piece of one (`Pipeline.feed`): its classified
+    events, the frames they closed, stats so far."""
 
     events: EventChunk
     frames: list[Frame]
@@ -137,7 +141,12 @@ class Batch:
 
 
 class Pipeline:
-    """Stages in order, then an optional framer. `process` one chunk, `finish` at end of stream.
+    """Stages in order, then an optional framer. `feed` one chunk (its batches), `finish` at end of stream.
+
+    The stages take each chunk whole; the framer takes it in pieces when it would close more frames from it
+    than `frames_bytes` hold (a small window over a long chunk: `window_us=1` over a 0.5 s chunk was 500,000
+    frames at once), one batch per piece, so a batch's frames stay within about `frames_bytes` (fn windows
+    with a time limit: twice). Framers are chunk-invariant: the same frames as from the whole chunk.
 
     A pipeline runs one stream at a time, and a new stream starts from the pipeline as it was built: the
     first chunk after `finish`, and every `run` (and `evstream.batches`) of a pipeline that ran before,
@@ -145,10 +154,13 @@ class Pipeline:
     stream's state into the next recording (or into a notebook cell run again) classed the start of the
     second by the end of the first."""
 
+    frames_bytes: int | None = None  # the frames one batch holds, at most (about); None: 64 MB (framing.bound)
+
     def __init__(self, stages: Iterable[Stage] = (), framer: Framer | None = None):
         self.stages = list(stages)
         self.framer = framer
         self.stats = RunStats()
+        self._cutter = None  # the stream's chunks in pieces for the framer (framing.bound): made at its first chunk
         self.cpu_s: dict[str, float] = {}  # CPU seconds per thread of the last threaded `run`
         self._built: tuple | None = None  # (stages, framer) as before the first chunk, copied then
         self._ended = False  # `finish` was called: the next chunk starts a new stream
@@ -169,6 +181,7 @@ class Pipeline:
                              "the next one afresh; build a new pipeline for each stream")
         self.stages, self.framer = copy.deepcopy(self._built)
         self.stats = RunStats()
+        self._cutter = None
         self._ended = False
 
     def _start(self) -> None:
@@ -180,16 +193,44 @@ class Pipeline:
             except Exception:  # noqa: BLE001 - a stage of the user's own that cannot be copied: one stream only
                 self._built = _UNCOPIED
 
+    def feed(self, chunk: EventChunk) -> Iterator[Batch]:
+        """The batches of one chunk: its events through the stages (now), then to the framer (as the batches are
+        taken; take them all before the next chunk), in pieces if it would close more than `frames_bytes` of
+        frames from them, one batch each; one batch when it closes fewer, as at every default window."""
+        return self._framed(self._stages(chunk))
+
     def process(self, chunk: EventChunk) -> Batch:
+        """One chunk as one batch: its events through the stages, and every frame they close at once (a small
+        window over a long chunk is many frames, all in memory together: `feed` gives them a few at a time)."""
+        events = self._stages(chunk)
+        batches = list(self._framed(events))
+        if len(batches) == 1:
+            return batches[0]
+        return Batch(events, [f for batch in batches for f in batch.frames], self.stats)
+
+    def _stages(self, chunk: EventChunk) -> EventChunk:
         if self._built is None or self._ended:
             self._start()
+        if self._cutter is None and self.framer is not None:
+            from .framing.bound import Cutter  # the framers' package (it imports this module), loaded by now
+
+            self._cutter = Cutter(self.framer, self.frames_bytes)  # None: its default
         n = len(chunk)
         for stage in self.stages:
             chunk = stage(chunk)
         self.stats.events_dropped += n - len(chunk)
-        frames = self.framer.push(chunk) if self.framer is not None else []
-        self.stats.add(chunk, len(frames))
-        return Batch(chunk, frames, self.stats)
+        self.stats.chunks += 1
+        return chunk
+
+    def _framed(self, events: EventChunk) -> Iterator[Batch]:
+        if self.framer is None:
+            self.stats.add(events, 0)
+            yield Batch(events, [], self.stats)
+            return
+        for piece in self._cutter.pieces(events):
+            frames = self.framer.push(piece)
+            self.stats.add(piece, len(frames))
+            yield Batch(piece, frames, self.stats)
 
     def finish(self, geometry: Geometry) -> Batch:
         """The frames the end of the stream closes; the next chunk starts a new stream (`restart`)."""
@@ -207,11 +248,12 @@ class Pipeline:
         threads: bool = False,
         stop: Callable[[], bool] | None = None,
     ) -> RunStats:
-        """Drive `source` through the pipeline into `sinks`; sinks are closed even on error (`fail`ed, if
-        they can tell a failed run from a whole one). `on_batch` is called after the sinks wrote a batch.
-        `threads`: read the source ahead on one thread and write the sinks behind on another, while this
-        one runs the stages (`evstream.threads`: same batches, same order, same output; both cores).
-        `stop`: asked after each chunk; true ends the run there, as if the source had ended."""
+        """Drive `source` through the pipeline into `sinks` (`feed`: one batch per chunk, or per piece of one);
+        sinks are closed even on error (`fail`ed, if they can tell a failed run from a whole one). `on_batch`
+        is called after the sinks wrote a batch. `threads`: read the source ahead on one thread and write the
+        sinks behind on another, while this one runs the stages (`evstream.threads`: same batches, same
+        order, same output; both cores). `stop`: asked after each chunk; true ends the run there, as if the
+        source had ended."""
         from .threads import ReadAhead, WriteBehind
 
         if self.used:  # one run is one stream, from the pipeline as built
@@ -232,10 +274,10 @@ class Pipeline:
         put = writer.put if writer is not None else deliver
         try:
             for chunk in chunks if chunks is not None else source:
-                batch = self.process(chunk)
-                geometry = batch.events.geometry
-                self.stats.wall_s = time.perf_counter() - t0
-                put((batch, False))
+                for batch in self.feed(chunk):
+                    geometry = batch.events.geometry
+                    self.stats.wall_s = time.perf_counter() - t0
+                    put((batch, False))
                 if stop is not None and stop():
                     break
             if chunks is not None:

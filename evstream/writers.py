@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 from .events import EventChunk, NoiseClass, concat
-from .framing.bound import Cut
 from .pipeline import Batch, Pipeline, RunStats, build, paced
 from .safe_write import AtomicOutput, being_read, is_no_space, no_space_error
 from .threads import ReadAhead, enabled, take
@@ -391,8 +390,7 @@ def archive(recording, out, *, pipeline: Pipeline | None = None, keep_noise: boo
             return True
         return False
 
-    # Cut: a chunk spanning many frames is handed on in pieces, so their frames never take more than ~64 MB at once
-    stats = pipeline.run(paced(Cut(source, pipeline.framer), speed), [sink], on_batch=on_batch,
+    stats = pipeline.run(paced(source, speed), [sink], on_batch=on_batch,
                          threads=threads.enabled(), stop=stopped)
     return {**stats.as_dict(), "mcap": sink.written, "packets": sink.packets, "frames_written": sink.frames_written,
             "partial": sink.interrupted}

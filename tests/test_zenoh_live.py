@@ -31,6 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 TURNTABLE = ROOT / "recordings" / "turntable.npz"
 BAR = ROOT / "recordings" / "bar.npz"
 TIMEOUT_S = 60
+PEAK = ("import sys; from evstream.cli import main; code = main(sys.argv[1:]); "
+        "print([ln for ln in open('/proc/self/status') if ln.startswith('VmHWM')][0], file=sys.stderr); "
+        "sys.exit(code)")
 
 
 def _events(path):
@@ -103,9 +106,12 @@ class Procs:
         self.tmp = tmp
         self.procs: list[subprocess.Popen] = []
 
-    def start(self, *args: str) -> subprocess.Popen:
+    def start(self, *args: str, peak: bool = False) -> subprocess.Popen:
+        """`evstream ARGS`; `peak`: the process prints its own peak resident memory (VmHWM) on stderr at
+        the end (wait4's ru_maxrss would count the forking pytest's high-water mark)."""
         n = len(self.procs)
-        p = subprocess.Popen([sys.executable, "-m", "evstream.cli", *args], cwd=ROOT,
+        runner = ["-c", PEAK] if peak else ["-m", "evstream.cli"]
+        p = subprocess.Popen([sys.executable, *runner, *args], cwd=ROOT,
                              stdout=open(self.tmp / f"out{n}.txt", "wb"), stderr=open(self.tmp / f"err{n}.txt", "wb"))
         p.n = n
         self.procs.append(p)
@@ -136,8 +142,8 @@ class Procs:
         self.wait_for(r, "listening on")
         return r
 
-    def subscriber(self, port: int, *args: str) -> subprocess.Popen:
-        s = self.start("subscribe", *args, "--connect", f"tcp/127.0.0.1:{port}", "--json")
+    def subscriber(self, port: int, *args: str, peak: bool = False) -> subprocess.Popen:
+        s = self.start("subscribe", *args, "--connect", f"tcp/127.0.0.1:{port}", "--json", peak=peak)
         self.wait_for(s, "subscribed to")
         return s
 
@@ -318,6 +324,25 @@ def test_until_end_stops_for_a_camera_that_sent_only_malformed_packets(procs):
         session.close()
     assert out["cameras"]["junk"]["malformed"] == 2 and out["cameras"]["junk"]["ended"]
     assert out["stopped_by"] == "end of stream"
+
+
+def test_a_subscriber_with_a_framer_takes_memory_for_a_batch_not_for_a_packet(procs):
+    """A subscriber with a framer handed it each packet whole: bar.npz published as one packet (0.5 s) made
+    5,000 frames of 346x260 at 100 µs windows in one batch, 1.8 GB (`--window-us 1` grows without bound).
+    The pipeline now hands its framer a packet in pieces: the same 5,000 frames, a few hundred MB."""
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs.router(port)
+    node = procs.subscriber(port, "evstream/cam1/events", "--framer", "fw", "--window-us", "100", "--until-end",
+                            "--idle-s", "40", peak=True)
+    sent = procs.result(procs.start("publish", str(BAR), "--key", "evstream/cam1/events", "--connect", ep,
+                                    "--speed", "0", "--packet-us", "500000", "--wait-subscribers", "10", "--json"))
+    got = procs.result(node)["cameras"]["cam1"]
+    assert sent["packets"] == got["packets"] == 1 and got["events"] == sent["events"] == 174_999
+    assert got["frames"] == 5000
+    hwm = [ln for ln in procs.stderr(node).splitlines() if ln.startswith("VmHWM")]
+    peak_mb = int(hwm[-1].split()[1]) / 1024
+    assert peak_mb < 1000, f"peak memory {peak_mb:.0f} MB"
 
 
 def test_subscribe_save_says_what_it_wrote(procs, tmp_path):

@@ -10,7 +10,6 @@ from pathlib import Path
 from ..batch import GLOB_MAGIC, TaskStop
 from ..events import NoiseClass
 from ..framing import options as framer_options
-from ..framing.bound import Cut
 from ..framing.render import STYLES
 from ..pipeline import build
 from ..safe_write import AtomicFolder, AtomicOutput
@@ -84,7 +83,7 @@ def _frame_with(kind: str, args, staging: Path | None, several: bool, stop: Task
         if stop is not None:
             stop.check()
 
-    stats = pipeline.run(Cut(source, pipeline.framer), sinks, on_batch=on_batch)  # frames in bounded batches
+    stats = pipeline.run(source, sinks, on_batch=on_batch)  # frames in batches of bounded size (Pipeline.feed)
     progress.done()
     fstats.duration_us = stats.duration_us
     return {"framer": pipeline.describe()["framer"], **fstats.as_dict(),

@@ -15,7 +15,6 @@ import numpy as np
 
 from .. import threads
 from ..framing import options as framer_options
-from ..framing.bound import Cut
 from ..pipeline import paced
 from .common import (
     FAST_CHUNK_EVENTS,
@@ -124,7 +123,7 @@ def cmd_replay(args) -> int:
 
         served = _ServeUntilStopped() if out.mode == "serve" else None  # before the run: no window without it
         with StopOnSignal() as stop, out.guard():  # Ctrl-C: stop after the chunk in progress, then the summary
-            stats = pipeline.run(paced(lag.watch(Cut(source, pipeline.framer)), args.speed), [sink], on_batch=on_batch,
+            stats = pipeline.run(paced(lag.watch(source), args.speed), [sink], on_batch=on_batch,
                                  threads=threads.enabled(default=False), stop=lambda: stop.signum is not None)
         progress.done()
         stopped_by = signal.Signals(stop.signum).name if stop.signum else None

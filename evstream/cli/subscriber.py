@@ -90,12 +90,13 @@ class Camera:
 
     def process(self, packet) -> None:
         """The stages here; the sinks and the republishing on the camera's writer thread (`evstream.threads`:
-        the next packet's stages overlap this one's encoding and sending), in order."""
-        batch = self.pipeline.process(packet.chunk)
-        if self.writer is not None:
-            self.writer.put((batch, packet.source_time_ns))
-        else:
-            self._deliver((batch, packet.source_time_ns))
+        the next packet's stages overlap this one's encoding and sending), in order. A packet from which the
+        framer would close many frames comes in several batches (`Pipeline.feed`)."""
+        for batch in self.pipeline.feed(packet.chunk):
+            if self.writer is not None:
+                self.writer.put((batch, packet.source_time_ns))
+            else:
+                self._deliver((batch, packet.source_time_ns))
 
     def _deliver(self, item) -> None:
         batch, source_time_ns = item

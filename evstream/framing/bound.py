@@ -10,6 +10,7 @@ of event time (`frame_step`: a window's least advance) and hold at most that man
 events, and crosses a pause in empty pieces until the framer stops emitting empty frames
 (`max_empty_frames`): the frames come out in batches of bounded size. Framers are chunk-invariant, so
 they are the same frames. A chunk that closes fewer frames passes as it is (as with every default).
+A `Pipeline` cuts for its framer this way (a `Cutter` per stream), so every way of running one is bounded.
 """
 
 from __future__ import annotations
@@ -33,40 +34,56 @@ def cut(chunks, framer, budget_bytes: int = FRAMES_BYTES):
     """`chunks` (EventChunks in stream order) as pieces from which `framer` closes at most about
     `frames_at_once` frames each (twice that for fn windows with a time limit, cut by both); the chunks
     themselves when there is no framer or nothing to bound."""
-    step_us, step_events = framer.frame_step() if framer is not None else (None, None)
-    if step_us is None and step_events is None:
-        yield from chunks
-        return
-    inner = getattr(framer, "inner", framer)
-    gap_pieces = None
-    mark = None  # the watermark handed on last; the frames start at the first event
-    empty_run = 0  # empty pieces handed on in a row (a pause)
+    cutter = Cutter(framer, budget_bytes)
     for chunk in chunks:
+        yield from cutter.pieces(chunk)
+
+
+class Cutter:
+    """One stream's chunks cut for `framer`, chunk by chunk (`pieces`): what `cut` does, holding between chunks
+    the watermark handed on last and the empty pieces of a pause. `Pipeline` keeps one per stream."""
+
+    def __init__(self, framer, budget_bytes: int | None = FRAMES_BYTES):
+        step = getattr(framer, "frame_step", None)  # a framer of the user's own may not say: passed whole
+        self.step_us, self.step_events = step() if step is not None else (None, None)
+        self.framer, self.budget_bytes = framer, FRAMES_BYTES if budget_bytes is None else budget_bytes
+        self.mark = None  # the watermark handed on last; the frames start at the first event
+        self.empty_run = 0  # empty pieces handed on in a row (a pause)
+
+    def _first(self, chunk: EventChunk) -> None:
+        """The bounds, from the first events' sensor."""
+        framer = self.framer
+        k = frames_at_once(framer, chunk.geometry.n_pixels, self.budget_bytes)
+        self.max_us = None if self.step_us is None else k * self.step_us
+        self.max_events = None if self.step_events is None else k * self.step_events
+        # a pause's empty frames come every pause_step_us: enough steps that the framer has stopped
+        # emitting them (max_empty_frames) before the jump to the next event
+        max_empty = getattr(getattr(framer, "inner", framer), "max_empty_frames", None)
+        max_empty = DEFAULT_MAX_EMPTY if max_empty is None else max_empty
+        pause_us = framer.pause_step_us() or self.step_us or 1
+        self.gap_pieces = math.ceil(max_empty * pause_us / self.max_us) + 1 if self.max_us else 0
+        self.mark = int(chunk.t[0])
+
+    def pieces(self, chunk: EventChunk):
+        """`chunk` in pieces, in order (at least one: an empty chunk behind the watermark is itself)."""
         n = len(chunk)
-        if mark is None:
-            if not n:
-                yield chunk
-                continue
-            mark = int(chunk.t[0])
-            k = frames_at_once(framer, chunk.geometry.n_pixels, budget_bytes)
-            max_us = None if step_us is None else k * step_us
-            max_events = None if step_events is None else k * step_events
-            # a pause's empty frames come every pause_step_us: enough steps that the framer has stopped
-            # emitting them (max_empty_frames) before the jump to the next event
-            max_empty = getattr(inner, "max_empty_frames", None)
-            max_empty = DEFAULT_MAX_EMPTY if max_empty is None else max_empty
-            pause_us = framer.pause_step_us() or step_us or 1
-            gap_pieces = math.ceil(max_empty * pause_us / max_us) + 1 if max_us else 0
-        t, i = chunk.t, 0
+        if (self.step_us is None and self.step_events is None) or (self.mark is None and not n):
+            yield chunk
+            return
+        if self.mark is None:
+            self._first(chunk)
+        max_us, max_events, mark = self.max_us, self.max_events, self.mark
+        t, i, given = chunk.t, 0, False
         end_of_chunk = max(int(chunk.t_end), int(t[-1])) if n else int(chunk.t_end)
         while i < n or mark < end_of_chunk:
-            if max_us is not None and empty_run >= gap_pieces:  # the framer skips empty frames by now
+            if max_us is not None and self.empty_run >= self.gap_pieces:  # the framer skips empty frames by now
                 nxt = int(t[i]) if i < n else end_of_chunk
+                self.empty_run = 0
                 if nxt > mark:  # on to the next event at once
+                    self.mark = mark = nxt
+                    given = True
                     yield EventChunk.empty(chunk.geometry, nxt, with_cls=chunk.cls is not None,
                                            with_label=chunk.label is not None)
-                    mark = nxt
-                empty_run = 0
                 continue
             limit = None if max_us is None else mark + max_us
             j = n if limit is None else i + int(np.searchsorted(t[i:], limit, side="left"))
@@ -78,26 +95,15 @@ def cut(chunks, framer, budget_bytes: int = FRAMES_BYTES):
             if j > i:
                 end = max(end, int(t[j - 1]))
                 whole = i == 0 and j == n and end == end_of_chunk
-                yield chunk if whole else chunk[i:j].replace(t_end=end)
-                empty_run = 0
+                piece = chunk if whole else chunk[i:j].replace(t_end=end)
+                self.empty_run = 0
             else:  # a pause: its frames in steps until the framer stops emitting empty ones
-                yield EventChunk.empty(chunk.geometry, end, with_cls=chunk.cls is not None,
-                                       with_label=chunk.label is not None)
-                empty_run += 1
+                piece = EventChunk.empty(chunk.geometry, end, with_cls=chunk.cls is not None,
+                                         with_label=chunk.label is not None)
+                self.empty_run += 1
             i, mark = j, max(mark, end)
-
-
-class Cut:
-    """A source (or any iterable of chunks) read through `cut`; its other attributes (geometry, path,
-    fraction_read, ...) are the source's."""
-
-    def __init__(self, source, framer):
-        self.source, self.framer = source, framer
-
-    def __iter__(self):
-        return cut(self.source, self.framer)
-
-    def __getattr__(self, name):
-        if name in ("source", "framer"):
-            raise AttributeError(name)
-        return getattr(self.source, name)
+            self.mark = mark
+            given = True
+            yield piece
+        if not given:
+            yield chunk
