@@ -348,7 +348,8 @@ class Pipeline:
     @classmethod
     def from_toml(cls, path) -> Pipeline:
         """From a TOML file: `[[stage]] kind = "density" window_us = 20000` ... `[framer] kind = "fw"`. A file
-        that cannot be read is an OSError of its kind saying so in one line, naming `path`."""
+        that cannot be read is an OSError of its kind saying so in one line, naming `path`; one that is not
+        UTF-8 or not TOML, a ValueError naming it and where."""
         try:
             f = open(path, "rb")
         except OSError as e:  # was Python's "[Errno 2] No such file or directory: 'p.toml'"
@@ -359,6 +360,9 @@ class Pipeline:
                 config = tomllib.load(f)
             except tomllib.TOMLDecodeError as e:
                 raise ValueError(f"{path}: not valid TOML: {e}") from None
+            except UnicodeDecodeError as e:  # was Python's "'utf-8' codec can't decode byte 0xe9 in position 5"
+                raise ValueError(f"{path}: not UTF-8 text: byte {e.start} (0x{e.object[e.start]:02x}); a pipeline "
+                                 "file is TOML, which is UTF-8") from None
         try:
             return cls.from_config(config)
         except (TypeError, ValueError, KeyError) as e:

@@ -618,6 +618,20 @@ def test_a_pipeline_file_that_is_not_there_or_a_folder_is_one_line_naming_it(tmp
     assert not (tmp_path / "x.rrd").exists()
 
 
+def test_a_pipeline_file_that_is_not_utf8_is_one_line_naming_it_and_the_byte(tmp_path, capsys):
+    """A pipeline file saved as Latin-1 (a comment with 'é') or as UTF-16 (Notepad's "Unicode") said Python's
+    "'utf-8' codec can't decode byte 0xe9 in position 5: invalid continuation byte": no file named."""
+    cases = {"latin1.toml": ("# café\n[[stage]]\nkind = 'stcf'\n".encode("latin-1"), 5),
+             "utf16.toml": ("[[stage]]\nkind = 'stcf'\n".encode("utf-16"), 0)}
+    for name, (data, at) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        rc, _, err = run(["replay", SHIPPED, "--pipeline", tmp_path / name, "--save", tmp_path / "x.rrd"], capsys)
+        assert rc == 1
+        assert one_line_error(err) == (f"evstream: error: {tmp_path / name}: not UTF-8 text: byte {at} "
+                                       f"(0x{data[at]:02x}); a pipeline file is TOML, which is UTF-8")
+    assert not (tmp_path / "x.rrd").exists()
+
+
 CTRL_C_WHILE_THE_FLAGS_ARE_READ = """
 import argparse, signal, sys
 sys.argv[0] = "evstream"  # as the console script: evstream/_start.py guards the start-up
