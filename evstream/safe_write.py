@@ -107,6 +107,27 @@ def cannot_write(target, e: OSError) -> OSError:
     return error
 
 
+def file_in_the_way(folder) -> Path | None:
+    """The file (not a folder) that stands where `folder` or one of its parents would be, if any."""
+    folder = Path(os.fspath(folder))
+    return next((f for f in (folder, *folder.parents) if f.exists() and not f.is_dir()), None)
+
+
+def not_a_folder(folder) -> NotADirectoryError:
+    """The one-line error for an output folder with a file in its way: "FILE: is a file, not a folder (the
+    output's folder is FOLDER)" (Python said "[Errno 17] File exists: 'FILE'" or "[Errno 20] Not a directory")."""
+    return NotADirectoryError(f"{file_in_the_way(folder) or os.fspath(folder)}: is a file, not a folder "
+                              f"(the output's folder is {os.fspath(folder)})")
+
+
+def make_folder(folder) -> None:
+    """`folder` and its parents, made where missing; a file in their way is `not_a_folder`."""
+    try:
+        Path(os.fspath(folder)).mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise not_a_folder(folder) from None
+
+
 def probe_writable(target, flag: str = "") -> None:
     """Before minutes of work: `target` can be created (its folder made if need be), else one line
     ("FLAG TARGET: cannot write there: REASON"); only a probe, no file left behind."""
@@ -319,8 +340,8 @@ class AtomicFolder:
     def __init__(self, target, replaces=()):
         self.target = Path(os.fspath(target))
         self.replaces = tuple(replaces)
-        if self.target.exists() and not self.target.is_dir():
-            raise NotADirectoryError(f"{self.target}: is a file, not a folder")
+        if file_in_the_way(self.target):
+            raise not_a_folder(self.target)
         self.target.parent.mkdir(parents=True, exist_ok=True)
         self.part = _create_part(self.target, folder=True)
         self.done = False

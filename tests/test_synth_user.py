@@ -54,3 +54,21 @@ def test_an_output_in_a_folder_that_is_a_file_says_so_in_one_line(tmp_path, caps
     assert err.strip().splitlines() == [err.strip()]
     assert err.startswith(f"evstream: error: {a_file}: is a file, not a folder")
     assert "Errno" not in err and a_file.read_text() == "mine"
+
+
+@pytest.mark.parametrize("argv, folder", [(["frames", "recordings/bar.npz", "--out", "{f}"], "{f}"),
+                                          (["frames", "recordings/bar.npz", "--out", "{f}/png"], "{f}/png"),
+                                          (["frames", "recordings/bar.npz", "--out", "{f}/a/b"], "{f}/a/b"),
+                                          (["train", "recordings/bar.npz", "--out", "{f}/m.npz"], "{f}"),
+                                          (["calibrate", "recordings/bar.npz", "--out", "{f}/x/m.npz"], "{f}/x")])
+def test_frames_and_train_out_in_a_file_say_so_as_the_other_commands_do(tmp_path, capsys, argv, folder):
+    """`frames --out FILE/png` said Python's '[Errno 17] File exists: FILE' ('[Errno 20] Not a directory' one
+    folder deeper), `--out FILE` 'FILE: is a file, not a folder' without the output's folder; `train --out
+    FILE/m.npz` 'folder FILE does not exist' (exit 2): it exists, as a file. Now the other commands' line."""
+    a_file = tmp_path / "notes"
+    a_file.write_text("mine")
+    code, out, err = run(capsys, *[a.format(f=a_file) for a in argv])
+    assert code == 1
+    folder = folder.format(f=a_file)
+    assert err == f"evstream: error: {a_file}: is a file, not a folder (the output's folder is {folder})\n"
+    assert a_file.read_text() == "mine" and sorted(tmp_path.iterdir()) == [a_file]

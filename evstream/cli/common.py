@@ -235,12 +235,10 @@ def add_quiet_flag(p) -> None:
 def create_folder(folder) -> str:
     """Make `folder` (and its parents) if missing; returns the topmost folder it made, or '' (a summary
     line says what it created: `folder_note`)."""
+    from ..safe_write import make_folder
+
     missing = first_missing(folder)
-    try:
-        Path(folder).mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError):  # was "[Errno 17] File exists: 'a_file'"
-        raise OSError(f"{next(f for f in (Path(folder), *Path(folder).parents) if f.exists())}: is a file, "
-                      f"not a folder (the output's folder is {folder})") from None
+    make_folder(folder)  # a file in the way: "FILE: is a file, not a folder (the output's folder is ...)"
     return missing
 
 

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from ..events import shown
+from ..safe_write import file_in_the_way, not_a_folder
 from .common import UsageError, not_the_input
 from .evaluate import read_recordings
 
@@ -72,6 +73,8 @@ def cmd_train(args) -> int:
         not_the_input(rec, out, "--out ")
     if out.suffix != ".npz":
         raise UsageError(f"--out {out}: a model file ends in .npz")
+    if file_in_the_way(out.parent):  # it exists, as a file: not "does not exist"
+        raise not_a_folder(out.parent)
     if not out.parent.is_dir():
         raise UsageError(f"--out {out}: folder {out.parent} does not exist")
     t0 = time.perf_counter()
@@ -136,6 +139,8 @@ def cmd_calibrate(args) -> int:
     not_the_input(args.model or model_file.DEFAULT_MODEL, out, "--out ", "the model being calibrated")
     if out.suffix != ".npz":
         raise UsageError(f"--out {out}: a model file ends in .npz")
+    if file_in_the_way(out.parent):  # it exists, as a file: not "does not exist"
+        raise not_a_folder(out.parent)
     if not out.parent.is_dir():
         raise UsageError(f"--out {out}: folder {out.parent} does not exist")
     model = model_file.load(args.model)
