@@ -452,9 +452,36 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "DensityFilter._init's coordinate dtype: int32 for uint16 from 2r rows sooner (rows = 2(h + 3r + 1)), or int64 "
     "map positions for int32 whatever the map's length: a wider integer holds the same columns, rows and positions "
     "(the head-group test and its twin compare modulo the dtype's width, which no coordinate then nears)": [
-        f"evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_{n}" for n in (36, 69)],
-    "row_full: L = 4 tested by the 8-lane vector (L < 4 for L <= 4), whose lanes from n = L on are masked off: "
-    "the same answer (and every stage's L = 2r + 1 is odd)": ["evstream.denoise.rowsum.x_row_full__mutmut_4"],
+        f"evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_{n}" for n in (36, 47, 69)],
+    "DensityFilter._init's 16-bit coordinates two rows further (rows = 2(h + 2r - 1)): the ON plane's rows (at most "
+    "2h + 2r) still fit, and the modular head-group test, the margin's reason, runs only without match_polarity, "
+    "where rows are below h (test_density_polarity_planes_on_the_tallest_sensors)": [
+        "evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_33"],
+    "DensityFilter._init's fifo_state of 3 (an unused third slot: the kernel and grow_fifo read [head, size]); "
+    "per_pol as float64 (counts exact below 2**53; g then enters only float arithmetic, the threshold and the "
+    "mean count, as it does as an int)": [
+        f"evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_{n}" for n in (93, 99)],
+    "DensityFilter: `far` decided otherwise (5 x nbytes for 4 x): as TimeSeriesFilter._bind 5, the prefetching "
+    "variant gives the same classes and scores": ["evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_24"],
+    "DensityFilter: the kernel variant that tests each event's code whatever all_live says (all_live None: not "
+    "computed, or computed when the caller gave it, or None passed to density_kernel): all_live only lets the "
+    "kernel skip that test when no code is set, so the same classes (a cost, not a result)": [
+        *(f"evstream.denoise.density.xǁDensityFilterǁ_run__mutmut_{n}" for n in (2, 3)),
+        "evstream.denoise.density.xǁDensityFilterǁ_kernel__mutmut_2"],
+    "density kernel: a prefetch at another address (the box of the event 16 ahead on the ON plane whatever its "
+    "polarity, its column subtracted, its rows upward): as 102 (session 12), a hint no value depends on": [
+        f"evstream.denoise.density.x_density_kernel__mutmut_{n}" for n in (74, 82, 93)],
+    "density kernel: the head group of exactly G entries tested by the loop (size > G for >=): the loop is the "
+    "match_polarity / far path, the same out and near as the vector test (both against brute force)": [
+        "evstream.denoise.density.x_density_kernel__mutmut_212"],
+    "density kernel: fifo_y's ON-plane offset h + 2r + 2 for + 1: written and read back with the same offset, the "
+    "planes' rows still more than 2r apart (never near), and 2h + 2r + 1 within the dtype's rows": [
+        "evstream.denoise.density.x_density_kernel__mutmut_33"],
+    "row_full: L = 4, 8 or 16 tested by the next wider vector (L < 4 for L <= 4, and so on), whose lanes from n = L "
+    "on are masked off: the same answer (and every stage's L = 2r + 1 is odd)": [
+        f"evstream.denoise.rowsum.x_row_full__mutmut_{n}" for n in (4, 14, 24)],
+    "row_full: L equal to the vector's cells taken by the loop (L < width for <=): its one pass tests a full vector "
+    "of n = L lanes, the same test": ["evstream.denoise.rowsum.x_row_full__mutmut_3"],
     "row_full over several vectors stepping one cell (range(0, L)) for a vector's width: each test covers cells "
     "pos + k .. pos + min(L, k + width) - 1, all of the L cells, and those from k = 0, width, 2 width .. cover "
     "them all: the same any() (row_add's like mutant, 47, adds twice and is killed)": [

@@ -129,6 +129,47 @@ def test_density_fifo_grows_past_its_initial_capacity():
 
 
 @pytest.mark.parametrize("far", [False, True])
+@pytest.mark.parametrize("height", [32_687, 32_760])
+def test_density_polarity_planes_on_the_tallest_sensors(height, far, monkeypatch):
+    """With match_polarity the FIFO keeps an ON event's row plus height + 2r + 1 (up to 2·height + 2r): in 16
+    bits up to 32,687 rows at r = 32, in 32 past that (at 32,760 rows the ON plane's last rows pass 65,535, and
+    16 bits would wrap them onto the OFF plane's first). Events on the last rows, both polarities, with the
+    head expiring: the brute force's classes and scores."""
+    from evstream.denoise import density
+
+    monkeypatch.setattr(density, "FAR_BYTES", 0 if far else 2**62)  # the map is 4 MB: `far` unless told not
+    rng = np.random.default_rng(height)
+    n = 300
+    t = np.cumsum(rng.integers(0, 20, n))
+    s = EventChunk.from_arrays(t, rng.integers(0, 3, n), rng.integers(height - 6, height, n), rng.integers(0, 2, n),
+                               Geometry(3, height))
+    make = lambda: DensityFilter(radius_px=32, window_us=400, match_polarity=True, rho_rel=0.02)  # noqa: E731
+    keep, score = density_reference(s, make())
+    f = make()
+    got = [f.classify_scored(c) for c in split(s, [0, 100, n])]
+    assert f._far == far
+    assert np.array_equal(np.concatenate([c for c, _ in got]) == NoiseClass.SIGNAL, keep)
+    assert np.allclose(np.concatenate([sc for _, sc in got]), score)
+    assert 0 < keep.sum() < n  # both classes
+
+
+@pytest.mark.parametrize("far", [False, True])
+@pytest.mark.parametrize("t0_us", [2**53 + 1, 2**62])
+def test_density_classes_do_not_depend_on_the_clock_offset(t0_us, far, monkeypatch):
+    """Windows are exact in whole µs at any time: the same stream from t0 (past float64's whole numbers)
+    gets the classes and scores it gets from 0."""
+    from evstream.denoise import density
+
+    monkeypatch.setattr(density, "FAR_BYTES", 0 if far else density.FAR_BYTES)
+    make = lambda: DensityFilter(window_us=400)  # noqa: E731
+    s = random_stream(4, 600, G, mean_dt_us=10)
+    want_codes, want_score = make().classify_scored(s)
+    codes, score = make().classify_scored(s.replace(t=s.t + t0_us))
+    assert np.array_equal(codes, want_codes) and np.array_equal(score, want_score)
+    assert 0 < np.count_nonzero(codes) < 600  # both classes
+
+
+@pytest.mark.parametrize("far", [False, True])
 def test_density_map_widens_before_a_row_holds_more_events_than_its_cells(far):
     """70,000 events on one pixel, all in one window: the event m counts m earlier ones, past the uint16
     cells' 65,535 (they would wrap to m - 65,536 unless the map widens to int32 first), chunked or not."""
