@@ -234,6 +234,18 @@ def test_a_read_only_folder_is_one_line_naming_the_target(read_only, capsys, com
     assert line.endswith("Read-only file system"), line
 
 
+@pytest.mark.parametrize("command", ["archive", "convert", "frames", "eval"])
+def test_many_recordings_into_a_read_only_folder_is_one_line_before_any_task(read_only, capsys, command):
+    """The many-recordings form said Python's "[Errno 30] Read-only file system: 'OUT'" on every recording's row
+    (after starting a cluster). Now one line naming the folder, exit 1, before anything runs."""
+    recordings = str(Path(SHIPPED).parent) + "/"
+    for out in (read_only, read_only / "new" / "deeper"):
+        argv = [command, recordings, *(["--out"] if command in ("frames", "eval") else []), str(out)]
+        rc, stdout, err = run(argv, capsys)
+        assert rc == 1 and stdout == ""
+        assert err == f"evstream: error: {out}: cannot write there: Read-only file system\n"
+
+
 def test_a_rerun_recording_on_a_full_disk_ends_every_time(full_disk):
     """rerun-sdk 0.41's file writer, stopped by a full disk, left `flush()` waiting for ever in about half
     the runs (and the SDK's destructor and exit flush after it): replay --save hung. Six runs, each ends."""

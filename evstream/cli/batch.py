@@ -76,6 +76,7 @@ def run_batch(args, work: Callable, suffix: str) -> int:
     except ValueError as e:
         raise UsageError(str(e)) from None
     _read_once(args)
+    writable_folder(args.out)
     params = flags_of(args)
     params["command_line"] = sys.argv[1:] or None
     progress = Progress(quiet=args.quiet, desc=f"{args.command} ", unit="recordings", delay_s=0.5)
@@ -98,6 +99,16 @@ def run_batch(args, work: Callable, suffix: str) -> int:
     else:
         print(table(results))
     return interrupted(signum, results) or (1 if failed else 0)
+
+
+def writable_folder(out) -> None:
+    """The output folder can be made and written into, else one error before the cluster starts (a read-only
+    disk was Python's "[Errno 30] Read-only file system: 'OUT'" on every recording's row)."""
+    try:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=out).close()  # unnamed (O_TMPFILE): nothing is left in the folder
+    except OSError as e:
+        raise OSError(f"{out}: cannot write there: {e.strerror or e}") from None
 
 
 def _read_once(args) -> None:

@@ -10,7 +10,7 @@ from pathlib import Path
 from .. import api, batch, noise, synth
 from ..events import EventError, Geometry
 from ..safe_write import AtomicOutput, probe_writable
-from .batch import _warm, add_batch_flags, interrupted, run_tasks, table
+from .batch import _warm, add_batch_flags, interrupted, run_tasks, table, writable_folder
 from .common import (
     Progress,
     UsageError,
@@ -151,6 +151,7 @@ def _eval_many(args) -> int:
         tasks = batch.plan(sources + ([args.real] if args.real else []), args.out, EVAL_SUFFIX)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    writable_folder(args.out)
     params = {"methods": ",".join(methods), "ratios": list(args.ratios), "rates_hz": list(args.rates_hz),
               "seeds": args.seeds, "tune": args.tune, "min_duration_s": args.min_duration_s}
     progress = Progress(quiet=args.quiet, desc="eval ", unit="recordings", delay_s=0.5)
