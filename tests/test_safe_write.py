@@ -244,6 +244,9 @@ def test_many_recordings_into_a_read_only_folder_is_one_line_before_any_task(rea
         rc, stdout, err = run(argv, capsys)
         assert rc == 1 and stdout == ""
         assert err == f"evstream: error: {out}: cannot write there: Read-only file system\n"
+    if command == "convert":  # not the folder form's 'cannot write there: File exists'
+        rc, _, err = run(["convert", SHIPPED, "/dev/null"], capsys)
+        assert rc == 1 and err.startswith("evstream: error: /dev/null: not a folder, and many recordings go to one")
 
 
 def test_a_rerun_recording_on_a_full_disk_ends_every_time(full_disk):

@@ -104,6 +104,9 @@ def run_batch(args, work: Callable, suffix: str) -> int:
 def writable_folder(out) -> None:
     """The output folder can be made and written into, else one error before the cluster starts (a read-only
     disk was Python's "[Errno 30] Read-only file system: 'OUT'" on every recording's row)."""
+    if os.path.exists(out) and not os.path.isdir(out):  # a device or a pipe (a regular file: run_batch says so)
+        raise OSError(f"{out}: not a folder, and many recordings go to one (one recording: an output file name "
+                      "with its format's extension)")
     try:
         Path(out).mkdir(parents=True, exist_ok=True)
         tempfile.TemporaryFile(dir=out).close()  # unnamed (O_TMPFILE): nothing is left in the folder
