@@ -338,7 +338,8 @@ def _runner(what, caller: str):
     return _in_time_order(run, what, caller), what.stages if isinstance(what, Pipeline) else [what]
 
 
-# id of a built stage or pipeline -> the time of the last event it was given (removed when it is collected)
+# id of a built stage -> the time of the last event it was given (removed when it is collected); a pipeline
+# knows its own (`Pipeline.last_t_us`: a stream that `batches` or `run` ended, the next starts afresh)
 _LAST_T: dict[int, int] = {}
 
 
@@ -349,13 +350,13 @@ def _in_time_order(run, owner, caller: str):
     key = id(owner)
 
     def checked(chunk: EventChunk):
-        last = _LAST_T.get(key)
+        last = owner.last_t_us if isinstance(owner, Pipeline) else _LAST_T.get(key)
         if len(chunk) and last is not None and chunk.t[0] < last:
             raise EventError(f"{caller}: the events start at t={int(chunk.t[0])} µs, before the last event this stage "
                              f"was given (t={last} µs): time goes back; for another pass build a fresh stage "
                              "(evstream.stage) or pass its name")
         out = run(chunk)
-        if len(chunk):
+        if len(chunk) and not isinstance(owner, Pipeline):
             if key not in _LAST_T:
                 try:
                     weakref.finalize(owner, _LAST_T.pop, key, None)

@@ -164,6 +164,13 @@ class Pipeline:
         self.cpu_s: dict[str, float] = {}  # CPU seconds per thread of the last threaded `run`
         self._built: tuple | None = None  # (stages, framer) as before the first chunk, copied then
         self._ended = False  # `finish` was called: the next chunk starts a new stream
+        self._t_given: int | None = None  # the last event time the stream in progress was given
+
+    @property
+    def last_t_us(self) -> int | None:
+        """The time of the last event given to the stream in progress (None: none yet, or it ended with
+        `finish`, so the next chunk starts a new stream): a chunk that starts before it goes back in time."""
+        return None if self._ended else self._t_given
 
     @property
     def used(self) -> bool:
@@ -183,6 +190,7 @@ class Pipeline:
         self.stats = RunStats()
         self._cutter = None
         self._ended = False
+        self._t_given = None
 
     def _start(self) -> None:
         if self._ended:
@@ -216,6 +224,8 @@ class Pipeline:
 
             self._cutter = Cutter(self.framer, self.frames_bytes)  # None: its default
         n = len(chunk)
+        if n:
+            self._t_given = int(chunk.t[-1])
         for stage in self.stages:
             chunk = stage(chunk)
         self.stats.events_dropped += n - len(chunk)

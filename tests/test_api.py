@@ -405,6 +405,29 @@ def test_a_built_stage_given_the_recording_again_is_an_event_error():
     assert len(evstream.clean("paper", again)) > 0 and len(evstream.clean(evstream.stage("paper"), again)) > 0
 
 
+@pytest.mark.parametrize("fn", [evstream.classify, evstream.clean])
+def test_a_pipeline_that_batches_ran_since_starts_afresh_for_classify_and_clean(fn):
+    """`classify(pipe, events)`, then `batches(pipe, source)` (a whole stream, from the pipeline as built), then
+    `classify(pipe, events)` again was refused: "time goes back", against the first call's last event, though
+    the pipeline had started and ended a stream since. The stream in progress is the pipeline's own: one
+    `batches` ended starts afresh (what a new pipeline gives); one left early is still going on."""
+    events = evstream.read(BAR, end_us=50_000)
+
+    def result(out):
+        return out if fn is evstream.classify else out.t
+
+    pipe = evstream.build_pipeline("paper")
+    first = result(fn(pipe, events)).copy()
+    assert np.array_equal(first, result(fn(evstream.build_pipeline("paper"), events)))
+    list(evstream.batches(pipe, evstream.open(BAR)))
+    assert np.array_equal(result(fn(pipe, events)), first)  # as a new pipeline
+    for _ in zip(range(1), evstream.batches(pipe, evstream.open(BAR, start_us=20_000))):  # a loop left early
+        pass
+    with pytest.raises(evstream.EventError, match=rf"^{fn.__name__}: the events start at t={events.t[0]} µs, before "
+                                                  r"the last event this stage was given \(t=\d+ µs\): time goes back"):
+        fn(pipe, events)
+
+
 @pytest.mark.parametrize("kind, params", [("voxel", {"bins": 3, "window_us": 20_000}),
                                           ("timesurface", {"tau_us": 5_000, "window": "fn", "n_events": 700}),
                                           ("histogram", {"window_us": 15_000})])
