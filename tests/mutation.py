@@ -60,6 +60,10 @@ TARGETS = {
     "framing_represent": ([FRAMING + "represent.py"],
                           ["tests/test_represent.py", "tests/test_represent_outputs.py",
                            "tests/test_represent_cli.py", "tests/test_framing.py"]),  # its bad parameters
+    # the chunks cut so that a framer hands on its frames in batches of bounded memory (a copy of its own, so
+    # `framing`'s verdicts and samples stay); its tests cut chunks for each kind of framer, through a Pipeline too,
+    # and run `frames` as a user types it
+    "framing_bound": ([FRAMING + "bound.py"], ["tests/test_frames_user.py", "tests/test_pipeline_bound.py"]),
     "codecs": ([CODECS + f for f in ("attachment.py", "event_packet.py", "evt2.py", "evt3.py")],
                ["tests/test_codecs_evt2.py", "tests/test_codecs_evt3.py", "tests/test_event_packet.py",
                 "tests/test_zenoh_attachment.py", "tests/test_seek.py", "tests/test_mcap_archive.py",
@@ -624,6 +628,15 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "test_encoder_takes_any_integer_dtype_and_names_the_last_call_s_time catches (seen failing with it written "
     "by hand, compiled); named here only because the plain copy cannot show it": [
         f"evstream.codecs.evt3.xǁEvt3Encoderǁencode__mutmut_{n}" for n in (3, 5)],
+
+    # session 13: framing_represent, framing_bound
+    "TimeSurface._surfaces: searchsorted's side is 'left' by default": [
+        "evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_52"],
+    "TimeSurface._surfaces counting a window's events into its counts when none of them counts (n_events >= 0): "
+    "its events [i, j) are then all noise, which the kernel skips before it counts, so nothing is written. So as "
+    "plain Python (the copy); compiled, numba refuses at typing a kernel that writes the shared read-only zeros "
+    "of an empty frame (48140dd), and test_time_surface_over_fixed_time_windows_of_noise_alone fails on it": [
+        "evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_58"],
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 

@@ -772,6 +772,50 @@ def test_time_surface_over_an_fn_window_a_chunk_closes_after_noise_and_one_count
             np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
 
 
+def test_time_surface_over_fn_windows_timing_out_between_chunks_without_classes():
+    """Without classes every event counts: an fn window that times out in a pause is closed by the next chunk
+    before its first event, and that event (after the window's end) must not reach the window's surface."""
+    s = noise_between(9, 6000)
+    s = s[s.cls == 0].replace(cls=None, label=None)  # stretches of 3 ms, 21 ms apart
+    starts = [0, *np.flatnonzero(np.diff(s.t) > 10_000) + 1, len(s)]
+    chunks = [s[a:b].replace(t_end=int(s.t[b - 1])) for a, b in zip(starts, starts[1:])]
+    assert len(chunks) >= 8
+    framer, frames, before = make("timesurface", "fn", max_window_us=2000)(), [], 0
+    for c in chunks:
+        out = framer.push(c)
+        before += sum(fr.t_end <= c.t[0] for fr in out)  # closed by this chunk, before its first event
+        frames += out
+    frames += framer.finish()
+    assert before >= 6 and sum(fr.n_events < 120 for fr in frames) >= 6  # timed out
+    for fr, ref in zip(frames, reference("timesurface", s, frames, "fn"), strict=True):
+        np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
+def test_time_surface_counts_fixed_time_windows_of_one_event():
+    """Over fixed time windows the time surface counts the frames' events itself (the windowing framer leaves
+    them to it): a window holding a single counted event (after noise, or alone) has that event's count."""
+    g = Geometry(4, 2)
+    t = [0, 5, 1000, 1010, 2500, 4200, 4300, 4400, 7000]
+    x, y, p = [0, 1, 2, 3, 0, 1, 2, 3, 0], [0, 1, 0, 1, 0, 1, 0, 1, 0], [1, 0, 1, 1, 0, 1, 0, 0, 1]
+    s = EventChunk.from_arrays(t, x, y, p, g)
+    s = s.replace(cls=np.array([0, 0, 1, 0, 0, 1, 1, 0, 0], np.uint8))
+    for chunks in ([s], [s[:4], s[4:]]):
+        frames = frames_of(make("timesurface", "fw", window_us=1000, max_empty_frames=5)(), chunks)
+        plain = frames_of(build("framer", {"kind": "fw", "window_us": 1000, "max_empty_frames": 5}), chunks)
+        assert [fr.n_events for fr in frames] == [fr.n_events for fr in plain] == [2, 1, 1, 0, 1, 0, 0, 1]
+        assert all(np.array_equal(f.counts, q.counts) for f, q in zip(frames, plain, strict=True))
+
+
+def test_time_surface_over_fixed_time_windows_of_noise_alone():
+    """A fixed time window holding only events the stages classed as noise is an empty frame whose counts are
+    the shared read-only zeros: nothing may be counted into them (compiled, numba refuses the write: 48140dd)."""
+    stream = noise_between(6, 3000)
+    frames = frames_of(make("timesurface", "fw")(), [stream])
+    assert sum(fr.n_events == 0 and np.any(fr.data > 0) for fr in frames) >= 5  # noise windows, after counted events
+    for fr, ref in zip(frames, reference("timesurface", stream, frames, "fw"), strict=True):
+        np.testing.assert_allclose(fr.data, ref, rtol=2e-6, atol=2e-6)
+
+
 @pytest.mark.parametrize("window", ["fw", "oa", "adaptive"])
 def test_windows_of_noise_alone_leave_no_state(window):
     """A window that adds events as they are counted has an array from its first event, counted or not;
@@ -829,8 +873,12 @@ def test_time_surface_windows_before_a_chunk_spanning_2_31_us():
     t = np.array([0, 5, 10, 10**9, 15 * 10**8, 23 * 10**8], np.int64)
     stream = EventChunk.from_arrays(t, np.array([0, 1, 2, 0, 1, 2]), np.zeros(6, int), np.array([1, 0, 1, 1, 1, 0]), g)
     spec = {"kind": "timesurface", "window": "fw", "window_us": 2**27, "tau_us": 2.0**24}
-    frames = frames_of(build("framer", spec), [stream[:3], stream[3:]])
-    assert len(frames) > 7 and frames[1].data.max() > 1e-7
+    framer = build("framer", spec)
+    # the first chunk's watermark is its last event (a slice's would be the next event, 10^9 µs, and it would
+    # close those windows itself): the second chunk closes them, before its first event
+    assert framer.push(stream[:3].replace(t_end=10)) == []
+    frames = frames_of(framer, [stream[3:]])
+    assert len(frames) > 7 and frames[1].data.max() > 1e-7 and frames[6].t_end < 10**9
     for fr, ref in zip(frames, reference("timesurface", stream, frames, "fw", tau_us=2.0**24), strict=True):
         np.testing.assert_allclose(fr.data, ref, rtol=1e-5, atol=math.exp(EXP_MIN_NORMAL) * (1 + 1e-5))
 
