@@ -454,7 +454,7 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "DensityFilter._init's coordinate dtype: int32 for uint16 from 2r rows sooner (rows = 2(h + 3r + 1)), or int64 "
     "map positions for int32 whatever the map's length: a wider integer holds the same columns, rows and positions "
     "(the head-group test and its twin compare modulo the dtype's width, which no coordinate then nears)": [
-        f"evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_{n}" for n in (36, 47, 69)],
+        f"evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_{n}" for n in (36, 39, 47, 69)],
     "DensityFilter._init's 16-bit coordinates two rows further (rows = 2(h + 2r - 1)): the ON plane's rows (at most "
     "2h + 2r) still fit, and the modular head-group test, the margin's reason, runs only without match_polarity, "
     "where rows are below h (test_density_polarity_planes_on_the_tallest_sensors)": [
@@ -472,10 +472,27 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
         "evstream.denoise.density.xǁDensityFilterǁ_kernel__mutmut_2"],
     "density kernel: a prefetch at another address (the box of the event 16 ahead on the ON plane whatever its "
     "polarity, its column subtracted, its rows upward): as 102 (session 12), a hint no value depends on": [
-        f"evstream.denoise.density.x_density_kernel__mutmut_{n}" for n in (74, 82, 93)],
+        f"evstream.denoise.density.x_density_kernel__mutmut_{n}" for n in (73, 74, 82, 93)],
     "density kernel: the head group of exactly G entries tested by the loop (size > G for >=): the loop is the "
     "match_polarity / far path, the same out and near as the vector test (both against brute force)": [
         "evstream.denoise.density.x_density_kernel__mutmut_212"],
+    "density kernel: the group expiry waiting for more than G entries (size > G for >=): a head group of exactly "
+    "G entries all out of the window stays one event longer, and the head-group test (size >= G) takes every one "
+    "of them off the count and off g meanwhile: the same counts (its cells may widen the map sooner: the same "
+    "values)": ["evstream.denoise.density.x_density_kernel__mutmut_138"],
+    "density kernel's relative score when the mean count is 0: inf only if total > 1 for > 0; but a mean count of "
+    "0 means g = 0 events in the window, and total counts some of them (total <= g), so total = 0 and both give "
+    "0.0 (the inf branch is never taken)": ["evstream.denoise.density.x_density_kernel__mutmut_352"],
+    "reference_head_group's mask one bit wider (2 << bits for 1 << bits): on every input the density kernel gives "
+    "it the same: a coordinate below 2**bits - 32 less x0 >= -r is below 2**bits (no mask needed), and a negative "
+    "difference d >= 33 + r - 2**bits masks to 2**bits + d or 2**(bits + 1) + d, both past box = 2r: outside "
+    "either way; the compiled test of the intrinsic against its twin, on wrapped coordinates too, fails on it": [
+        "evstream.denoise.density.x_reference_head_group__mutmut_10"],
+    "NOT equivalent compiled, only as plain Python: DensityFilter._init's fifo_y as float64 (np.zeros(group, )): "
+    "compiled, the head-group intrinsic refuses coordinates of two dtypes (a TypingError in every test that "
+    "reaches the kernel); plain, its twin takes them, and rows are exact in float64 (np.uint32 of a negative "
+    "float wraps as of an int): the same values. Left for the twin to refuse what the intrinsic's typing refuses": [
+        "evstream.denoise.density.xǁDensityFilterǁ_init__mutmut_86"],
     "density kernel: fifo_y's ON-plane offset h + 2r + 2 for + 1: written and read back with the same offset, the "
     "planes' rows still more than 2r apart (never near), and 2h + 2r + 1 within the dtype's rows": [
         "evstream.denoise.density.x_density_kernel__mutmut_33"],

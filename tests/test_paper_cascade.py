@@ -102,6 +102,9 @@ dc_params = st.fixed_dictionaries({
 })
 
 
+# numba's kernels raise on a division by zero (its "python" error model); as plain Python (tests/mutation.py)
+# numpy only warns: here an error too
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 @given(st.integers(0, 2**32), st.integers(0, 250), density_params)
 def test_density_kernel_matches_brute_force(seed, n, params):
     s = random_stream(seed, n, G, mean_dt_us=30)
@@ -151,6 +154,26 @@ def test_density_polarity_planes_on_the_tallest_sensors(height, far, monkeypatch
     assert np.array_equal(np.concatenate([c for c, _ in got]) == NoiseClass.SIGNAL, keep)
     assert np.allclose(np.concatenate([sc for _, sc in got]), score)
     assert 0 < keep.sum() < n  # both classes
+
+
+def test_density_far_expiry_of_an_on_event_at_the_first_pixel(monkeypatch):
+    """Over a far map with match_polarity and r = 0 an ON event at (0, 0) adds to the ON plane's first cell (its
+    map position is the OFF plane's size): its expiry takes it off the ON events' count, as the brute force."""
+    from evstream.denoise import density
+
+    monkeypatch.setattr(density, "FAR_BYTES", 0)
+    rng = np.random.default_rng(5)
+    n = 300
+    at_origin = rng.random(n) < 0.6
+    x = np.where(at_origin, 0, rng.integers(0, G.width, n))
+    y = np.where(at_origin, 0, rng.integers(0, G.height, n))
+    p = np.where(at_origin, 1, rng.integers(0, 2, n))
+    s = EventChunk.from_arrays(np.cumsum(rng.integers(0, 20, n)), x, y, p, G)
+    f = DensityFilter(radius_px=0, window_us=100, match_polarity=True, rho_rel=0.5)
+    keep, score = density_reference(s, f)
+    codes, got = f.classify_scored(s)
+    assert f._far
+    assert np.array_equal(codes == NoiseClass.SIGNAL, keep) and np.allclose(got, score)
 
 
 @pytest.mark.parametrize("far", [False, True])
@@ -510,6 +533,19 @@ def test_a_stage_keeps_its_state_when_a_chunk_brings_an_equal_geometry(make):
     first = f.classify_scored(s[:200])[1]
     second = f.classify_scored(s[200:].replace(geometry=Geometry(G.width, G.height)))[1]
     assert np.allclose(np.concatenate([first, second]), whole)
+
+
+@pytest.mark.parametrize("make", [DensityFilter, TimeSeriesFilter])
+def test_a_stage_starts_afresh_on_a_chunk_from_another_sensor(make):
+    """A chunk of another Geometry (a smaller sensor, its events within a window of the last) is judged as a
+    fresh stage judges it: the state is rebuilt for the new sensor, nothing of the old one counts."""
+    s = random_stream(3, 300, G, mean_dt_us=10)
+    other = random_stream(4, 300, Geometry(20, 16), t0_us=int(s.t[-1]), mean_dt_us=10)
+    f = make()
+    f.classify_scored(s)
+    codes, score = f.classify_scored(other)
+    want_codes, want_score = make().classify_scored(other)
+    assert np.array_equal(codes, want_codes) and np.allclose(score, want_score)
 
 
 _RATE = "rate_hz must divide 1 MHz (bins of whole µs), got "
