@@ -142,3 +142,18 @@ def test_the_ssh_tunnel_advice_names_both_ports_of_the_web_viewer():
     advice = readme[readme.index("ssh -L"):][:400]
     for port in (rerun_viewer.DEFAULT_WEB_PORT, rerun_viewer.DEFAULT_GRPC_PORT):
         assert f"{port}:127.0.0.1:{port}" in advice
+
+
+def test_every_argument_of_every_command_says_what_it_is():
+    """`evstream info --help` listed `source` with nothing beside it (so did replay and publish; archive's and
+    convert's OUT; synth's scene, --seed, --duration-ms, --width, --height)."""
+    import argparse
+
+    from evstream.cli import parser
+
+    commands = next(a for a in parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    silent = {name: [a.option_strings[0] if a.option_strings else a.dest for a in p._actions
+                     if not a.help and a.dest != "help"] for name, p in commands.items()}
+    assert {name: args for name, args in silent.items() if args} == {}
+    said = commands["info"].format_help()
+    assert "\n  REC " in said and "a recording, any format evstream reads" in said

@@ -23,7 +23,8 @@ def add_sources_and_out(p, out_metavar: str) -> None:
     """The positionals of a command with a many-recordings form: SOURCE... then OUT (a file or a folder)."""
     p.add_argument("source", nargs="+", metavar="SOURCE",
                    help="a recording; or several, folders and globs (then OUT is a folder: evstream.batch)")
-    p.add_argument("out", metavar=out_metavar)
+    p.add_argument("out", metavar=out_metavar, help="the output file (its extension: the format), or the folder of "
+                   "many recordings' outputs")
 
 
 def add_batch_flags(p) -> None:

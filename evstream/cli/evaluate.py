@@ -257,12 +257,14 @@ def read_recordings(paths, min_duration_s: float, command: str, strict: bool | s
 
 def add_synth_parser(sub) -> None:
     p = sub.add_parser("synth", help="simulate a scene with ground-truth labels")
-    p.add_argument("scene", choices=sorted(synth.SCENES))
+    p.add_argument("scene", choices=sorted(synth.SCENES), help="the simulated scene")
     p.add_argument("out", help="output .npz (native format)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration-ms", type=float, default=1000.0)
-    p.add_argument("--width", type=int, default=synth.DEFAULT_GEOMETRY.width)
-    p.add_argument("--height", type=int, default=synth.DEFAULT_GEOMETRY.height)
+    p.add_argument("--seed", type=int, default=0, help="random seed of the scene and its noise (default 0)")
+    p.add_argument("--duration-ms", type=float, default=1000.0, help="length of the recording (ms, default 1000)")
+    p.add_argument("--width", type=int, default=synth.DEFAULT_GEOMETRY.width,
+                   help=f"sensor width (px, default {synth.DEFAULT_GEOMETRY.width})")
+    p.add_argument("--height", type=int, default=synth.DEFAULT_GEOMETRY.height,
+                   help=f"sensor height (px, default {synth.DEFAULT_GEOMETRY.height})")
     p.add_argument("--noise-ratio", type=float,
                    help=f"noise events per signal event (default {DEFAULT_NOISE_RATIO:g} = 50 %%; 0 = none)")
     p.add_argument("--ba-rate-hz", type=float, help="background activity per pixel (instead of a ratio)")

@@ -101,7 +101,7 @@ def convert_file(source: str, out: str, stop: TaskStop | None = None, **flags) -
 
 def add_info_parser(sub) -> None:
     p = sub.add_parser("info", help="describe a recording")
-    p.add_argument("source")
+    p.add_argument("source", metavar="REC", help="a recording, any format evstream reads (docs/formats.md)")
     add_source_flags(p)
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.set_defaults(func=cmd_info)

@@ -126,7 +126,7 @@ def cmd_publish(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("publish", help="play a recording as a live camera over Zenoh")
-    p.add_argument("source")
+    p.add_argument("source", metavar="REC", help="a recording, any format evstream reads (docs/formats.md)")
     add_source_flags(p)
     p.add_argument("--key", default=DEFAULT_KEY, help=f"Zenoh key (default {DEFAULT_KEY})")
     p.add_argument("--speed", type=float, default=1.0, help="1 = real time (default), 0 = as fast as possible")

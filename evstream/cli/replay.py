@@ -194,7 +194,7 @@ class _ServeUntilStopped:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("replay", help="replay a recording through a pipeline into the Rerun viewer")
-    p.add_argument("source")
+    p.add_argument("source", metavar="REC", help="a recording, any format evstream reads (docs/formats.md)")
     add_source_flags(p)
     add_pipeline_flags(p)
     p.add_argument("--speed", type=float, default=0.0, help="1 = real time, 0 = as fast as possible")
