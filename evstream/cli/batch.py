@@ -77,7 +77,6 @@ def run_batch(args, work: Callable, suffix: str) -> int:
     except ValueError as e:
         raise UsageError(str(e)) from None
     _read_once(args)
-    writable_folder(args.out)
     params = flags_of(args)
     params["command_line"] = sys.argv[1:] or None
     progress = Progress(quiet=args.quiet, desc=f"{args.command} ", unit="recordings", delay_s=0.5)
@@ -132,6 +131,7 @@ def run_tasks(args, tasks: list[batch.Task], work: Callable, params: dict, on_re
     """batch.run_many with the command's --jobs/--scheduler/--force, and SIGINT/SIGTERM caught from before the
     cluster starts: a Ctrl-C at any moment stops the tasks (their outputs as after a one-file Ctrl-C).
     Returns (results, the signal that stopped the run or None)."""
+    writable_folder(args.out)
     with StopOnSignal() as stop:
         try:
             results = batch.run_many(tasks, work, params, jobs=args.jobs, scheduler=args.scheduler, force=args.force,

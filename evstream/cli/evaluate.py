@@ -10,7 +10,7 @@ from pathlib import Path
 from .. import api, batch, noise, synth
 from ..events import EventError, Geometry
 from ..safe_write import AtomicOutput, probe_writable
-from .batch import _warm, add_batch_flags, interrupted, run_tasks, table, writable_folder
+from .batch import _warm, add_batch_flags, interrupted, run_tasks, table
 from .common import (
     Progress,
     UsageError,
@@ -151,7 +151,6 @@ def _eval_many(args) -> int:
         tasks = batch.plan(sources + ([args.real] if args.real else []), args.out, EVAL_SUFFIX)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    writable_folder(args.out)
     params = {"methods": ",".join(methods), "ratios": list(args.ratios), "rates_hz": list(args.rates_hz),
               "seeds": args.seeds, "tune": args.tune, "min_duration_s": args.min_duration_s}
     progress = Progress(quiet=args.quiet, desc="eval ", unit="recordings", delay_s=0.5)
@@ -261,10 +260,8 @@ def add_synth_parser(sub) -> None:
     p.add_argument("out", help="output .npz (native format)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the scene and its noise (default 0)")
     p.add_argument("--duration-ms", type=float, default=1000.0, help="length of the recording (ms, default 1000)")
-    p.add_argument("--width", type=int, default=synth.DEFAULT_GEOMETRY.width,
-                   help=f"sensor width (px, default {synth.DEFAULT_GEOMETRY.width})")
-    p.add_argument("--height", type=int, default=synth.DEFAULT_GEOMETRY.height,
-                   help=f"sensor height (px, default {synth.DEFAULT_GEOMETRY.height})")
+    p.add_argument("--width", type=int, default=synth.DEFAULT_GEOMETRY.width, help="pixels (default %(default)s)")
+    p.add_argument("--height", type=int, default=synth.DEFAULT_GEOMETRY.height, help="pixels (default %(default)s)")
     p.add_argument("--noise-ratio", type=float,
                    help=f"noise events per signal event (default {DEFAULT_NOISE_RATIO:g} = 50 %%; 0 = none)")
     p.add_argument("--ba-rate-hz", type=float, help="background activity per pixel (instead of a ratio)")
