@@ -652,6 +652,26 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "plain Python (the copy); compiled, numba refuses at typing a kernel that writes the shared read-only zeros "
     "of an empty frame (48140dd), and test_time_surface_over_fixed_time_windows_of_noise_alone fails on it": [
         "evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_58"],
+    "frames_at_once: max(2, frame_bytes) for max(1, ...): every framer's frame is at least 4 bytes (FramerBase: "
+    "two uint16 count planes of one pixel or more; a representation adds its channels); the max only keeps a "
+    "0 from dividing": ["evstream.framing.bound.x_frames_at_once__mutmut_11"],
+    "Cutter starting with one empty piece counted: a stream's first piece starts at its first event, so holds "
+    "it, and sets the count to 0; before it, the one check of the count passes only when max_empty_frames is "
+    "0 (gap_pieces 1), and then jumps to the first event, where the watermark already is: nothing handed on": [
+        "evstream.framing.bound.xǁCutterǁ__init____mutmut_19"],
+    "Cutter._first reading max_empty_frames from the framer itself, not its inner framer: a representation "
+    "passes its window parameters on as given (WINDOW_PARAMS; None: the window's default, 1,000 = "
+    "DEFAULT_MAX_EMPTY), and a windowing framer has no inner one": [
+        f"evstream.framing.bound.xǁCutterǁ_first__mutmut_{n}" for n in (25, 31, 32)],
+    "Cutter._first: pause_us falls back to 1 (or 2) only when step_us is None, and then max_us is None, "
+    "gap_pieces 0 and pause_us unused; gap_pieces as 1 for 0 where max_us is None: read only where it is not; "
+    "one more empty piece before the jump over a pause (+ 2): the framer has stopped emitting empty frames "
+    "by the last one already, so that piece closes no frame (the same frames, the same bound)": [
+        f"evstream.framing.bound.xǁCutterǁ_first__mutmut_{n}" for n in (42, 50, 51)],
+    "Cutter.pieces: end_of_chunk as t_end alone for a chunk with events differs only where t_end is below the "
+    "last event; its last piece is then the chunk's events with t_end = the last event, not the chunk itself, "
+    "and every framer's watermark is the larger of t_end and the last event (framing.base): the same frames": [
+        "evstream.framing.bound.xǁCutterǁpieces__mutmut_16"],
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 

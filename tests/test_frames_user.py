@@ -13,7 +13,7 @@ from evstream.sources import native
 
 from evstream.cli import main
 from evstream.events import EventChunk, Geometry
-from evstream.framing.bound import cut
+from evstream.framing.bound import Cutter, cut, frames_at_once
 from evstream.pipeline import build
 from evstream.testing import assert_frames_equal, frames_of, random_bounds, random_stream, split
 
@@ -49,6 +49,12 @@ CUT_FRAMERS = [
     {"kind": "timesurface", "window_us": 30},
     {"kind": "voxel", "window": "oa", "window_us": 40, "stride_us": 20},
     {"kind": "histogram", "window": "fn", "n_events": 4},
+    {"kind": "fn", "n_events": 2, "max_window_us": None},  # cut by events alone
+    # more empty frames in a row than the default 1,000: the pause is crossed in that many frames' steps
+    {"kind": "fw", "window_us": 20, "max_empty_frames": 3000},
+    {"kind": "timesurface", "window_us": 30, "max_empty_frames": 3000},
+    # and fewer: the first empty pieces of a pause still close the windows that overlap its last events
+    {"kind": "oa", "window_us": 100, "stride_us": 10, "max_empty_frames": 50},
 ]
 AT_ONCE = 6  # the budget of the test: six frames
 
@@ -76,7 +82,54 @@ def test_cut_hands_a_framer_the_same_frames_a_few_at_a_time(spec, seed):
         got.extend(out)
     got.extend(framer.finish())
     assert_frames_equal(got, whole)
-    assert most <= 2 * AT_ONCE + 1  # fn with a time limit is cut by events and by time: twice
+    # k frames' steps a piece: k + 1 frames at most; fn with a time limit is cut by events and by time: twice
+    by_both = spec.get("window", spec["kind"]) == "fn" and spec.get("max_window_us", 1) is not None
+    assert most <= (2 if by_both else 1) * AT_ONCE + 1
+
+
+def test_frames_at_once_and_what_is_not_cut():
+    """At least one frame a piece, however small the budget; no framer, or a framer of the user's own that
+    says no step (no `frame_step`), gets the chunks themselves."""
+    framer = build("framer", {"kind": "fw", "window_us": 20})
+    size = framer.frame_bytes(100)
+    assert [frames_at_once(framer, 100, b) for b in (0, size - 1, size, 2 * size - 1, 3 * size)] == [1, 1, 1, 1, 3]
+
+    class Own:  # the least a pipeline's framer needs
+        def push(self, chunk):
+            return []
+
+    chunks = split(paused_stream(0), random_bounds(0, 4000, max_chunks=4))
+    for framer in (None, Own()):
+        pieces = list(cut(chunks, framer))
+        assert len(pieces) == len(chunks) and all(a is b for a, b in zip(pieces, chunks))
+
+
+def test_cut_gives_every_chunk_at_least_one_piece():
+    """Empty chunks (a source's watermark alone) are cut too: one before any event passes as it is, and so does
+    one behind the watermark; one that carries a pause is crossed in steps. One-event chunks from the first."""
+    stream = paused_stream(0)
+    g, half = stream.geometry, len(stream) // 2
+
+    def empty(t_end):
+        return EventChunk.empty(g, t_end, with_cls=True, with_label=True)
+
+    chunks = [empty(int(stream.t[0])), *(stream[i : i + 1] for i in range(5)),
+              stream[5:half].replace(t_end=int(stream.t[half - 1])),
+              empty(int(stream.t[half])), empty(int(stream.t[half]) - 1), stream[half:]]  # the pause; behind it
+    whole = frames_of(build("framer", {"kind": "fw", "window_us": 20}), chunks)
+    framer = build("framer", {"kind": "fw", "window_us": 20})
+    cutter = Cutter(framer, AT_ONCE * framer.frame_bytes(g.n_pixels))
+    got, most = [], 0
+    for chunk in chunks:
+        pieces = list(cutter.pieces(chunk))
+        assert pieces and (len(chunk) or chunk.t_end > stream.t[0] or pieces == [chunk])
+        for piece in pieces:
+            out = framer.push(piece)
+            most = max(most, len(out))
+            got.extend(out)
+    got.extend(framer.finish())
+    assert_frames_equal(got, whole)
+    assert sum(fr.n_events == 0 for fr in got) >= 1000 and most <= AT_ONCE + 1  # the pause: 1,000 empty frames
 
 
 PEAK = ("import sys; from evstream.cli import main; code = main(sys.argv[1:]); "
