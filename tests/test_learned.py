@@ -2,6 +2,7 @@
 invariants, the model file (round trip, damaged and foreign files refused), and the shipped model."""
 
 import json
+import math
 import zipfile
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from evstream.denoise.learned.features import (
 )
 from evstream.denoise.learned.model import DEFAULT_MODEL
 from evstream.denoise.learned.neighbours import WORD_TAIL, nb8_support, reference_nb8
-from evstream.denoise.learned.train import KEEP_GRID, features_of
+from evstream.denoise.learned.train import KEEP_GRID, Samples, features_of, fit, fit_logistic, fit_mlp
 from evstream.events import Geometry, NoiseClass
 from evstream.jit import njit
 from evstream.noise import NoiseSpec, inject
@@ -544,3 +545,161 @@ def test_eval_scores_a_users_model_on_recordings_it_never_saw_and_refuses_its_ow
         assert rows["model:mine_from_bar"][metric] == pytest.approx(by_hand[metric]), metric
     assert main(["eval", str(bar), "--model", str(model), "--ratios", "1", "--rates-hz"]) == 1
     assert f"was trained on {bar}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"keep": 0}, "learned: keep must be a fraction in (0, 1], got 0"),
+    ({"keep": 1.5}, "learned: keep must be a fraction in (0, 1], got 1.5"),
+    ({"keep": "0.8"}, "learned: keep must be a fraction in (0, 1], got '0.8'"),
+    ({"hot_min": 0}, "learned: hot_min must be a positive integer, got 0"),
+    ({"hot_min": 2.0}, "learned: hot_min must be a positive integer, got 2.0"),
+    ({"dc_lam": -0.1}, "learned: dc_lam must be in [0, 1] (1: no DC rule), got -0.1"),
+    ({"dc_lam": 1.5}, "learned: dc_lam must be in [0, 1] (1: no DC rule), got 1.5"),
+    ({"dc_lam": "0.2"}, "learned: dc_lam must be in [0, 1] (1: no DC rule), got '0.2'")])
+def test_bad_stage_parameters_are_refused_by_name(params, message):
+    """Each bad parameter is refused with its own message (no test checked them: a dc_lam of 1.5, a DC rule
+    that never fires, ran silently once the check said `or`); the edges of each range are taken."""
+    with pytest.raises(ValueError) as e:
+        LearnedFilter(model=random_model(0), **params)
+    assert str(e.value) == message
+    for ok in ({"keep": 0.99}, {"keep": 0.5}, {"hot_min": 1}, {"dc_lam": 0}, {"dc_lam": 1}):
+        assert LearnedFilter(model=random_model(0), **ok).params()[next(iter(ok))] == next(iter(ok.values()))
+
+
+def reference_mlp(Z, y, hidden, seed, epochs=60, batch=4096, lr=3e-3, l2=1e-5):
+    """`fit_mlp` written out sample by sample: one hidden ReLU layer, the mean logistic loss of each minibatch
+    plus l2/2 of the squared weights (not the biases), Adam (0.9, 0.999, 1e-8, bias-corrected); the same
+    seeded draws (the first layer's N(0, 2/d), the second's N(0, 1/hidden), a permutation per epoch)."""
+    rng = np.random.default_rng(seed)
+    n, d = Z.shape
+    w1 = rng.normal(0, np.sqrt(2.0 / d), (hidden, d)).tolist()
+    b1 = [0.0] * hidden
+    w2 = rng.normal(0, np.sqrt(1.0 / hidden), hidden).tolist()
+    b2 = 0.0
+    params = {("w1", j, c): w1[j][c] for j in range(hidden) for c in range(d)}
+    params.update({("b1", j): b1[j] for j in range(hidden)})
+    params.update({("w2", j): w2[j] for j in range(hidden)})
+    params[("b2",)] = b2
+    m = dict.fromkeys(params, 0.0)
+    v = dict.fromkeys(params, 0.0)
+    t = 0
+    for _ in range(epochs):
+        order = rng.permutation(n)
+        for a in range(0, n, batch):
+            rows = order[a:a + batch]
+            grad = {k: (l2 * params[k] if k[0] in ("w1", "w2") else 0.0) for k in params}
+            for r in rows:
+                pre = [sum(params["w1", j, c] * Z[r, c] for c in range(d)) + params["b1", j] for j in range(hidden)]
+                out = sum(max(p, 0.0) * params["w2", j] for j, p in enumerate(pre)) + params["b2",]
+                g = (1 / (1 + math.exp(-out)) - y[r]) / len(rows)
+                grad["b2",] += g
+                for j in range(hidden):
+                    grad["w2", j] += max(pre[j], 0.0) * g
+                    if pre[j] > 0:
+                        grad["b1", j] += g * params["w2", j]
+                        for c in range(d):
+                            grad["w1", j, c] += g * params["w2", j] * Z[r, c]
+            t += 1
+            for k, gk in grad.items():
+                m[k] = 0.9 * m[k] + 0.1 * gk
+                v[k] = 0.999 * v[k] + 0.001 * gk * gk
+                params[k] -= lr * (m[k] / (1 - 0.9**t)) / (math.sqrt(v[k] / (1 - 0.999**t)) + 1e-8)
+    return (np.array([[params["w1", j, c] for c in range(d)] for j in range(hidden)]),
+            np.array([params["b1", j] for j in range(hidden)]), np.array([params["w2", j] for j in range(hidden)]),
+            params["b2",])
+
+
+@pytest.mark.parametrize("options", [{}, {"epochs": 3, "batch": 5, "lr": 0.05, "l2": 0.01}])
+def test_the_mlp_fit_is_adam_on_the_logistic_loss(options):
+    """`fit_mlp` against its definition written out (no test trained an MLP: its step, its loss gradient and
+    its defaults were never checked); its defaults (60 epochs, batches of 4096, lr 3e-3, l2 1e-5) and small
+    batches with a short last one."""
+    rng = np.random.default_rng(3)
+    Z = rng.normal(size=(12, 3))
+    y = (Z[:, 0] + 0.5 * rng.normal(size=12) > 0).astype(np.float64)
+    got = fit_mlp(Z, y, 4, seed=7, **options)
+    want = reference_mlp(Z, y, 4, seed=7, **options)
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-12)
+    assert isinstance(got[3], float)
+
+
+def test_the_logistic_fit_is_the_penalised_optimum():
+    """`fit_logistic` returns the minimum of the summed logistic loss plus l2·n/2 of the squared weights,
+    the intercept not penalised (l2 = 1e-3 by default): the gradient there is zero. Unbalanced classes,
+    so the intercept is far from 0."""
+    rng = np.random.default_rng(5)
+    Z = rng.normal(size=(400, 4))
+    y = (Z @ [1.5, -2.0, 0.5, 0.0] + 1.2 + rng.logistic(size=400) > 0).astype(np.float64)
+    for l2, args in ((1e-3, {}), (0.05, {"l2": 0.05})):
+        w, b = fit_logistic(Z, y, **args)
+        assert isinstance(b, float) and w.shape == (4,) and b > 0.5
+        pr = 1 / (1 + np.exp(-(Z @ w + b)))
+        np.testing.assert_allclose(Z.T @ (pr - y) + l2 * len(y) * w, 0, atol=1e-7)
+        assert abs(np.sum(pr - y)) < 1e-7
+
+
+def synthetic_samples(seed: int, groups: int = 2, conds: int = 2, per: int = 200) -> Samples:
+    """Feature rows without the kernel: `per` rows per (recording, condition), half signal, the signal's
+    first three features shifted up; for the fitting and calibration steps alone."""
+    rng = np.random.default_rng(seed)
+    n = groups * conds * per
+    y = (rng.random(n) < 0.5).astype(np.float64)
+    X = rng.normal(size=(n, NF))
+    X[:, :3] += 1.5 * y[:, None]
+    group = np.repeat(np.arange(groups), conds * per)
+    cond = np.tile(np.repeat(np.arange(conds), per), groups)
+    return Samples(X, y, group, cond, [f"r{g}" for g in range(groups)])
+
+
+def test_the_operating_points_are_cross_fitted_over_two_or_more_recordings():
+    """With two recordings each is scored by a model fitted on the other (`calibrate`), with one by the
+    training quantiles; the held-out keeps it reports are fractions near those asked; thresholds fall as
+    the keep rises and are float32 values (the same bytes on every machine); an MLP's fold models are
+    seeded as the final one (the same model twice), 16 hidden units unless told."""
+    S = synthetic_samples(1)
+    m = fit(S)
+    assert m.meta["calibration"] == "cross-fitted over recordings"
+    held = m.meta["held_out_keep_at_training_keep"]
+    assert set(held) == {"0.80", "0.85", "0.90"}
+    assert all(abs(v - float(k)) < 0.1 and 0 < v < 1 for k, v in held.items()), held
+    grid = m.threshold_grid
+    assert (np.diff(grid) <= 0).all() and grid[0] > grid[-1]
+    assert np.array_equal(grid, grid.astype(np.float32).astype(np.float64))
+    one = fit(S.subset(S.group == 0))
+    assert one.meta["calibration"] == "training quantiles (one recording)"
+    a, b = fit(S, "mlp", hidden=4, seed=3), fit(S, "mlp", hidden=4, seed=3)
+    assert np.array_equal(a.threshold_grid, b.threshold_grid) and np.array_equal(a.w1, b.w1)
+    assert fit(S, "mlp", calibrate_folds=False).w1.shape == (16, NF)
+
+
+def test_a_recording_and_condition_with_fewer_than_50_signal_events_sets_no_threshold():
+    """`_fold_levels` takes a row of thresholds per (recording, condition) with at least 50 signal events."""
+    from evstream.denoise.learned.train import _fold_levels
+
+    S = synthetic_samples(2)
+    model = fit(S, calibrate_folds=False)
+    signal = S.y == 1
+    rank = np.zeros(len(S.y), np.int64)
+    for g, c in ((1, 0), (1, 1)):
+        sel = signal & (S.group == g) & (S.cond == c)
+        rank[sel] = np.arange(sel.sum())
+    keep = ~signal | (S.group == 0) | ((S.cond == 0) & (rank < 49)) | ((S.cond == 1) & (rank < 50))
+    assert _fold_levels(model, S.subset(keep), KEEP_GRID).shape == (3, len(KEEP_GRID))
+
+
+def test_train_names_the_features_it_does_not_know():
+    from evstream.denoise.learned.train import train
+
+    with pytest.raises(ValueError) as e:
+        train({"bar": small_scene()}, without=["dc_own", "nope", "f0"])
+    assert str(e.value) == f"unknown feature(s) nope, f0; the features are {', '.join(FEATURES)}"
+
+
+def test_a_model_of_an_unknown_kind_is_a_one_line_error(tmp_path):
+    m = random_model(8)
+    m.meta.update({"feature_version": FEATURE_VERSION, "features": list(FEATURES), "keep": 0.85, "kind": "forest"})
+    m.save(tmp_path / "forest.npz")
+    with pytest.raises(ModelError) as e:
+        load(tmp_path / "forest.npz")
+    assert str(e.value) == f"{tmp_path / 'forest.npz'}: unknown model kind 'forest' (logistic or mlp)"
