@@ -703,3 +703,29 @@ def test_a_model_of_an_unknown_kind_is_a_one_line_error(tmp_path):
     with pytest.raises(ModelError) as e:
         load(tmp_path / "forest.npz")
     assert str(e.value) == f"{tmp_path / 'forest.npz'}: unknown model kind 'forest' (logistic or mlp)"
+
+
+def test_large_counts_take_the_log_of_their_64th_and_stop_at_2_to_the_22():
+    """`_log1p_count`, the block-count feature's logarithm: exact below 2^16 events, then log1p(c >> 6) + log 64,
+    the same from 2^22 on (a block never counts that many events in 20 ms in the tests that compare the
+    features: the cap was never reached)."""
+    from evstream.denoise.learned.features import LOG_CELLS, TABLES, _log1p_count
+
+    for c in (0, 1, 700, LOG_CELLS - 1):
+        assert _log1p_count(TABLES, c) == pytest.approx(math.log1p(c), rel=1e-15)
+    for c in (LOG_CELLS, 3 << 19, (1 << 22) - 1):
+        assert _log1p_count(TABLES, c) == pytest.approx(math.log1p(c >> 6) + math.log(64), rel=1e-15)
+        assert abs(_log1p_count(TABLES, c) - math.log1p(c)) < 1e-3 * math.log1p(c)
+    for c in (1 << 22, 1 << 40):
+        assert _log1p_count(TABLES, c) == pytest.approx(math.log1p(LOG_CELLS - 1) + math.log(64), rel=1e-15)
+
+
+def test_a_recording_of_fewer_than_100_signal_events_is_refused_by_name():
+    from evstream.denoise.learned.train import samples
+    from evstream.noise import Condition
+
+    signal, once = small_scene(), [Condition(noise_ratio=0.5)]
+    assert len(samples({"r": signal[:100]}, once, per_stream=30).y) == 30
+    with pytest.raises(ValueError) as e:
+        samples({"r": signal[:99]}, once, per_stream=30)
+    assert str(e.value) == "r: fewer than 100 signal events, nothing to learn from"
