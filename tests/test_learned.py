@@ -411,6 +411,7 @@ def test_thinned_copies_set_the_operating_point_not_the_weights():
     assert thinned.threshold(0.85) < plain.threshold(0.85)
     assert not np.array_equal(both.w1, plain.w1)
     assert thinned.meta["thinned_copies"] == "operating point only" and "thinned_copies" not in plain.meta
+    assert 0.2 < plain.meta["signal_share"] < 0.8 and plain.meta["training_events"] > 1000
     slow = train(recs, per_stream=1000, time_scale=(2,))  # stretched copies: in the fit
     assert not np.array_equal(slow.w1, plain.w1) and slow.meta["signal_time_scaled_by"] == [2.0]
     with pytest.raises(ValueError, match="time scale"):
@@ -670,7 +671,8 @@ def test_the_operating_points_are_cross_fitted_over_two_or_more_recordings():
     assert one.meta["calibration"] == "training quantiles (one recording)"
     a, b = fit(S, "mlp", hidden=4, seed=3), fit(S, "mlp", hidden=4, seed=3)
     assert np.array_equal(a.threshold_grid, b.threshold_grid) and np.array_equal(a.w1, b.w1)
-    assert fit(S, "mlp", calibrate_folds=False).w1.shape == (16, NF)
+    alone = fit(S, "mlp", calibrate_folds=False)
+    assert alone.w1.shape == (16, NF) and alone.meta["calibration"] == "training quantiles"
 
 
 def test_a_recording_and_condition_with_fewer_than_50_signal_events_sets_no_threshold():
@@ -729,3 +731,43 @@ def test_a_recording_of_fewer_than_100_signal_events_is_refused_by_name():
     with pytest.raises(ValueError) as e:
         samples({"r": signal[:99]}, once, per_stream=30)
     assert str(e.value) == "r: fewer than 100 signal events, nothing to learn from"
+
+
+def test_features_are_standardised_by_their_spread_unless_constant():
+    """`_standardise`: each feature's mean and standard deviation, a constant one (spread below 1e-9) divided
+    by 1; a small spread is kept as it is."""
+    from evstream.denoise.learned.train import _standardise
+
+    X = np.column_stack([np.arange(6.0), 1e-3 * np.arange(6.0), np.full(6, 4.0)])
+    mean, std = _standardise(X)
+    np.testing.assert_allclose(mean, [2.5, 2.5e-3, 4.0])
+    np.testing.assert_allclose(std, [np.std(np.arange(6.0)), 1e-3 * np.std(np.arange(6.0)), 1.0])
+
+
+def test_thinned_copies_are_the_same_for_the_same_seed():
+    """The thinning draws from its own seeded generator: the same samples twice, other ones for another seed."""
+    from evstream.denoise.learned.train import samples
+    from evstream.noise import Condition
+
+    recs, once = {"bar": small_scene()}, [Condition(noise_ratio=0.5)]
+    a, b = (samples(recs, once, per_stream=200, thin=(0.3,)) for _ in range(2))
+    assert np.array_equal(a.X, b.X) and np.array_equal(a.y, b.y)
+    other = samples(recs, once, per_stream=200, thin=(0.3,), rng_seed=1)
+    assert not np.array_equal(a.X[200:], other.X[200:])
+
+
+def test_a_model_file_that_does_not_fit_says_why(tmp_path):
+    """The messages name the kind whose shapes do not fit and the error a damaged archive raised."""
+    m = random_model(9, "logistic")
+    m.meta.update({"feature_version": FEATURE_VERSION, "features": list(FEATURES), "keep": 0.85})
+    m.w1 = np.zeros((2, NF))
+    m.save(tmp_path / "shapes.npz")
+    with pytest.raises(ModelError) as e:
+        load(tmp_path / "shapes.npz")
+    assert str(e.value) == f"{tmp_path / 'shapes.npz'}: array shapes do not fit a logistic model of {NF} features"
+    m.w1 = np.zeros((1, NF))
+    m.save(tmp_path / "good.npz")
+    (tmp_path / "cut.npz").write_bytes((tmp_path / "good.npz").read_bytes()[:300])
+    with pytest.raises(ModelError) as e:
+        load(tmp_path / "cut.npz")
+    assert str(e.value).startswith(f"{tmp_path / 'cut.npz'}: not a readable evstream model file (BadZipFile: ")
