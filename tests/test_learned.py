@@ -771,3 +771,21 @@ def test_a_model_file_that_does_not_fit_says_why(tmp_path):
     with pytest.raises(ModelError) as e:
         load(tmp_path / "cut.npz")
     assert str(e.value).startswith(f"{tmp_path / 'cut.npz'}: not a readable evstream model file (BadZipFile: ")
+
+
+def test_every_stretched_copy_enters_the_fit_and_an_off_kept_copy_keeps_that_share_of_off():
+    """One noise condition: the stretched copy is the only other condition, so its rows must change the
+    weights (train 59 left out the first stretched condition); an `off_keep` copy keeps every ON event and
+    about that share of the OFF ones (samples 87 kept all or none by one draw)."""
+    from evstream.denoise.learned.train import samples, train
+    from evstream.noise import Condition
+
+    recs, once = {"bar": small_scene()}, [Condition(noise_ratio=0.5)]
+    plain = train(recs, per_stream=300, conditions=once)
+    slow = train(recs, per_stream=300, conditions=once, time_scale=(2,))
+    assert not np.array_equal(slow.w1, plain.w1)
+    S = samples(recs, once, per_stream=10**9, off_keep=(0.5,))
+    sig = recs["bar"]
+    share = (sig.p == 1).mean() + 0.5 * (sig.p == 0).mean()
+    kept = S.y[S.cond == 1].sum() / S.y[S.cond == 0].sum()
+    assert abs(kept - share) < 0.05, (kept, share)
