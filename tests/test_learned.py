@@ -708,10 +708,10 @@ def test_a_model_of_an_unknown_kind_is_a_one_line_error(tmp_path):
 
 
 def test_large_counts_take_the_log_of_their_64th_and_stop_at_2_to_the_22():
-    """`_log1p_count`, the block-count feature's logarithm: exact below 2^16 events, then log1p(c >> 6) + log 64,
-    the same from 2^22 on (a block never counts that many events in 20 ms in the tests that compare the
-    features: the cap was never reached)."""
-    from evstream.denoise.learned.features import LOG_CELLS, TABLES, _log1p_count
+    """`_log1p_count` (and the reference's `_ref_log1p`), the block-count feature's logarithm: exact below
+    2^16 events, then log1p(c >> 6) + log 64, the same from 2^22 on (a block never counts that many events in
+    20 ms in the tests that compare the features: the cap was never reached)."""
+    from evstream.denoise.learned.features import LOG_CELLS, TABLES, _log1p_count, _ref_log1p
 
     for c in (0, 1, 700, LOG_CELLS - 1):
         assert _log1p_count(TABLES, c) == pytest.approx(math.log1p(c), rel=1e-15)
@@ -720,6 +720,8 @@ def test_large_counts_take_the_log_of_their_64th_and_stop_at_2_to_the_22():
         assert abs(_log1p_count(TABLES, c) - math.log1p(c)) < 1e-3 * math.log1p(c)
     for c in (1 << 22, 1 << 40):
         assert _log1p_count(TABLES, c) == pytest.approx(math.log1p(LOG_CELLS - 1) + math.log(64), rel=1e-15)
+    for c in (0, 700, LOG_CELLS - 1, LOG_CELLS, 3 << 19, 1 << 22, 1 << 40):  # the reference's, the same
+        assert _ref_log1p(c) == pytest.approx(_log1p_count(TABLES, c), rel=1e-15)
 
 
 def test_a_recording_of_fewer_than_100_signal_events_is_refused_by_name():
