@@ -517,6 +517,25 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "row - k*wp + 1): a prefetch is a hint that never faults and no value depends on": [
         f"evstream.denoise.learned.features.x_feature_kernel__mutmut_{n}" for n in (38, 150, 156, 157)],
 
+    # session 13: denoise_learned
+    "learned feature kernel: the word rows prefetched at row + k / wp + 1 (a float address, cast to an index by "
+    "numba): a prefetch is a hint that never faults and no value depends on": [
+        "evstream.denoise.learned.features.x_feature_kernel__mutmut_158"],
+    "learned training samples: the unthinned signal also drawn through the thinning generator at fraction 1.0 "
+    "(`random() < 1.0` keeps every event: the same signal); the thinned copies then use later draws of the same "
+    "seeded generator, another random thinning of the same fraction, as seeded (nothing promises which draws)": [
+        "evstream.denoise.learned.train.x_samples__mutmut_31"],
+    "fit_logistic's linear predictor not clipped at +30: above 30 the logistic is 1 within 1e-13 and exp(-z) "
+    "underflows to 0 without a warning (the lower clip, kept, is the one that guards an overflow)": [
+        "evstream.denoise.learned.train.x_fit_logistic__mutmut_24"],
+    "fit_mlp's output bias as two equal entries (np.zeros(2)): each update broadcasts the same value to both, and "
+    "only b2[0] is read and returned": ["evstream.denoise.learned.train.x_fit_mlp__mutmut_32"],
+    "sha256 of a model's recording read in blocks of 2 MiB for 1 MiB: the same digest": [
+        "evstream.denoise.learned.train.x_sha256__mutmut_16"],
+    "Model.threshold's 1e-9 tolerance at its own edge (`<` for `<=`): only a keep exactly equal to the grid's end "
+    "-/+ 1e-9 as a float is refused instead of taken; the tolerance absorbs rounding, its last ulp is no contract": [
+        f"evstream.denoise.learned.model.xǁModelǁthreshold__mutmut_{n}" for n in (23, 24)],
+
     # session 12: codecs, codecs_payloads
     "mono.encode: copy=None / True / left out for copy=False in the final astype('<u8'): a copy or not, the "
     "same bytes (session 9's encode 58, 60, 63, renumbered by the x, y, p checks added since)": [
