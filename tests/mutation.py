@@ -671,6 +671,10 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "plain Python (the copy); compiled, numba refuses at typing a kernel that writes the shared read-only zeros "
     "of an empty frame (48140dd), and test_time_surface_over_fixed_time_windows_of_noise_alone fails on it": [
         "evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_58"],
+    "TimeSurface._surfaces: a frame's counts seen flat by reshape(-2) (NumPy infers the size for any negative "
+    "one); the open window's events applied when none is left (i <= n: _apply(n, n) applies nothing, and its "
+    "rebase check reads t[n - 1], which the last _apply already rebased to)": [
+        f"evstream.framing.represent.xǁTimeSurfaceǁ_surfaces__mutmut_{n}" for n in (76, 95)],
     "frames_at_once: max(2, frame_bytes) for max(1, ...): every framer's frame is at least 4 bytes (FramerBase: "
     "two uint16 count planes of one pixel or more; a representation adds its channels); the max only keeps a "
     "0 from dividing": ["evstream.framing.bound.x_frames_at_once__mutmut_11"],
@@ -691,6 +695,14 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "last event; its last piece is then the chunk's events with t_end = the last event, not the chunk itself, "
     "and every framer's watermark is the larger of t_end and the last event (framing.base): the same frames": [
         "evstream.framing.bound.xǁCutterǁpieces__mutmut_16"],
+    "Cutter.pieces, the jump over a pause once the framer has stopped emitting empty frames (gap_pieces past "
+    "max_empty_frames): one more empty piece first (`>`); the count of empty pieces left at 1 after it (the "
+    "next piece with events resets it; pieces before that are the same pause); an empty piece at the watermark "
+    "itself (`nxt >= mark`) or the chunk again after the jump (`given` False or None): a watermark no higher "
+    "than the framer's closes nothing; the jump piece without its watermark (None: the lowest): it closes no "
+    "frame either way, and the next piece's watermark carries the framer on. The same frames, the same bound": [
+        f"evstream.framing.bound.xǁCutterǁpieces__mutmut_{n}" for n in (32, 39, 40, 42, 43, 45, 49)],
+    "Cutter.pieces: searchsorted's side is 'left' by default": ["evstream.framing.bound.xǁCutterǁpieces__mutmut_71"],
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 

@@ -12,9 +12,9 @@ import pytest
 from evstream.sources import native
 
 from evstream.cli import main
-from evstream.events import EventChunk, Geometry
+from evstream.events import EventChunk, Geometry, concat
 from evstream.framing.bound import Cutter, cut, frames_at_once
-from evstream.pipeline import build
+from evstream.pipeline import Pipeline, build
 from evstream.testing import assert_frames_equal, frames_of, random_bounds, random_stream, split
 
 REC = "recordings/bar.npz"
@@ -102,6 +102,21 @@ def test_frames_at_once_and_what_is_not_cut():
     for framer in (None, Own()):
         pieces = list(cut(chunks, framer))
         assert len(pieces) == len(chunks) and all(a is b for a, b in zip(pieces, chunks))
+    before = split(paused_stream(0)[:2000].replace(t_end=None), random_bounds(0, 2000, max_chunks=4))  # 10 ms
+    pieces = list(cut(before, build("framer", {"kind": "fw", "window_us": 20})))
+    assert len(pieces) == len(before) and all(a is b for a, b in zip(pieces, before))
+
+
+def test_cut_a_chunk_from_the_last_event_before_a_pause():
+    """A chunk from the last event before a pause on: its first piece is that one event, with its own time as
+    the watermark (not the chunk's last event, which would close the windows of events not yet handed on)."""
+    stream = paused_stream(1)
+    chunks = [stream[: len(stream) // 2 - 1], stream[len(stream) // 2 - 1 :]]
+    spec = {"kind": "fw", "window_us": 20}
+    framer = build("framer", spec)
+    got = [f for piece in cut(chunks, framer, AT_ONCE * framer.frame_bytes(stream.geometry.n_pixels))
+           for f in framer.push(piece)]
+    assert_frames_equal(got + framer.finish(), frames_of(build("framer", spec), chunks))
 
 
 def test_cut_gives_every_chunk_at_least_one_piece():
@@ -130,6 +145,20 @@ def test_cut_gives_every_chunk_at_least_one_piece():
     got.extend(framer.finish())
     assert_frames_equal(got, whole)
     assert sum(fr.n_events == 0 for fr in got) >= 1000 and most <= AT_ONCE + 1  # the pause: 1,000 empty frames
+
+
+def test_a_pipeline_s_batches_keep_the_classes_and_labels_over_a_pause():
+    """Each piece is a batch's events: the empty pieces that cross a pause have the stream's cls and label
+    arrays too (empty), or joining the batches' events would drop them (`concat` keeps them where all have)."""
+    stream = paused_stream(0)
+    framer = build("framer", {"kind": "fw", "window_us": 20})
+    pipe = Pipeline([], framer)
+    pipe.frames_bytes = AT_ONCE * framer.frame_bytes(stream.geometry.n_pixels)
+    chunks = split(stream, random_bounds(0, len(stream), max_chunks=4))
+    events = [b.events for chunk in chunks for b in pipe.feed(chunk)]
+    assert sum(not len(e) for e in events) > 100  # the pause crossed in empty pieces, then jumped
+    joined = concat(events)
+    assert np.array_equal(joined.cls, stream.cls) and np.array_equal(joined.label, stream.label)
 
 
 PEAK = ("import sys; from evstream.cli import main; code = main(sys.argv[1:]); "
