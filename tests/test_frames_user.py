@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from evstream.sources import native
+from framer_cases import FRAMERS
 
 from evstream.cli import main
 from evstream.events import EventChunk, Geometry, concat
@@ -41,14 +42,7 @@ def test_time_surface_over_windows_that_hold_only_noise(capsys, window_us):
 
 # -- frames in batches of bounded size (evstream.framing.bound) -------------------------------------------
 CUT_FRAMERS = [
-    {"kind": "fw", "window_us": 20},
-    {"kind": "fn", "n_events": 2},
-    {"kind": "fn", "n_events": 3, "max_window_us": 40},
-    {"kind": "oa", "window_us": 40, "stride_us": 10},
-    {"kind": "adaptive", "window_us": 40, "n_base": 2},
-    {"kind": "timesurface", "window_us": 30},
-    {"kind": "voxel", "window": "oa", "window_us": 40, "stride_us": 20},
-    {"kind": "histogram", "window": "fn", "n_events": 4},
+    *FRAMERS,
     {"kind": "fn", "n_events": 2, "max_window_us": None},  # cut by events alone
     # more empty frames in a row than the default 1,000: the pause is crossed in that many frames' steps
     {"kind": "fw", "window_us": 20, "max_empty_frames": 3000},
