@@ -11,6 +11,7 @@ import pytest
 from evstream.events import Frame
 from evstream.framing.render import (
     COLOUR_MAPS,
+    GRAY,
     PngWriter,
     coloured,
     mosaic,
@@ -123,3 +124,13 @@ def test_png_header_level_and_message():
     assert len(png_bytes(big, level=0)) > len(png_bytes(big, level=9))
     with pytest.raises(ValueError, match=r"^PNG needs at least one pixel$"):
         png_bytes(np.zeros((0, 4), np.uint8))
+
+
+def test_histogram_picture_is_on_minus_off():
+    """A histogram is drawn in coolwarm over ON − OFF (channel 1 less channel 0): a pixel of ON events only is
+    warm, one of OFF only cool, one of both equally the map's middle (a sum would draw all three alike warm)."""
+    off, on = [[0.0, 3.0, 2.0]], [[3.0, 0.0, 2.0]]
+    img = render_representation(_rep("histogram", [off, on]))
+    np.testing.assert_array_equal(img, COLOUR_MAPS["coolwarm"][signed(np.array(on) - np.array(off))])
+    assert img[0, 0, 0] > img[0, 0, 2] and img[0, 1, 2] > img[0, 1, 0]  # ON: more red than blue; OFF: more blue
+    assert (img[0, 2] == COLOUR_MAPS["coolwarm"][GRAY]).all()
