@@ -83,7 +83,8 @@ def test_cut_hands_a_framer_the_same_frames_a_few_at_a_time(spec, seed):
 
 def test_frames_at_once_and_what_is_not_cut():
     """At least one frame a piece, however small the budget; no framer, or a framer of the user's own that
-    says no step (no `frame_step`), gets the chunks themselves."""
+    says no step (no `frame_step`) or not all the cut needs (`frame_bytes`, `pause_step_us`), gets the chunks
+    themselves."""
     framer = build("framer", {"kind": "fw", "window_us": 20})
     size = framer.frame_bytes(100)
     assert [frames_at_once(framer, 100, b) for b in (0, size - 1, size, 2 * size - 1, 3 * size)] == [1, 1, 1, 1, 3]
@@ -92,8 +93,12 @@ def test_frames_at_once_and_what_is_not_cut():
         def push(self, chunk):
             return []
 
+    class Stepped(Own):  # says its step, but not its frames' size nor a pause's step
+        def frame_step(self):
+            return 20, None
+
     chunks = split(paused_stream(0), random_bounds(0, 4000, max_chunks=4))
-    for framer in (None, Own()):
+    for framer in (None, Own(), Stepped()):
         pieces = list(cut(chunks, framer))
         assert len(pieces) == len(chunks) and all(a is b for a, b in zip(pieces, chunks))
     before = split(paused_stream(0)[:2000].replace(t_end=None), random_bounds(0, 2000, max_chunks=4))  # 10 ms

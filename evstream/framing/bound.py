@@ -44,7 +44,9 @@ class Cutter:
     the watermark handed on last and the empty pieces of a pause. `Pipeline` keeps one per stream."""
 
     def __init__(self, framer, budget_bytes: int | None = FRAMES_BYTES):
-        step = getattr(framer, "frame_step", None)  # a framer of the user's own may not say: passed whole
+        # a framer of the user's own may not say its step, its frames' size or a pause's step: passed whole
+        says = all(hasattr(framer, m) for m in ("frame_step", "frame_bytes", "pause_step_us"))
+        step = framer.frame_step if says else None
         self.step_us, self.step_events = step() if step is not None else (None, None)
         self.framer, self.budget_bytes = framer, FRAMES_BYTES if budget_bytes is None else budget_bytes
         self.mark = None  # the watermark handed on last; the frames start at the first event
