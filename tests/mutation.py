@@ -681,7 +681,7 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "Cutter starting with one empty piece counted: a stream's first piece starts at its first event, so holds "
     "it, and sets the count to 0; before it, the one check of the count passes only when max_empty_frames is "
     "0 (gap_pieces 1), and then jumps to the first event, where the watermark already is: nothing handed on": [
-        "evstream.framing.bound.xǁCutterǁ__init____mutmut_19"],
+        "evstream.framing.bound.xǁCutterǁ__init____mutmut_26"],
     "Cutter._first reading max_empty_frames from the framer itself, not its inner framer: a representation "
     "passes its window parameters on as given (WINDOW_PARAMS; None: the window's default, 1,000 = "
     "DEFAULT_MAX_EMPTY), and a windowing framer has no inner one": [
