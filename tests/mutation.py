@@ -703,6 +703,19 @@ _EQUIVALENT_BY_REASON: dict[str, list[str]] = {
     "frame either way, and the next piece's watermark carries the framer on. The same frames, the same bound": [
         f"evstream.framing.bound.xǁCutterǁpieces__mutmut_{n}" for n in (32, 39, 40, 42, 43, 45, 49)],
     "Cutter.pieces: searchsorted's side is 'left' by default": ["evstream.framing.bound.xǁCutterǁpieces__mutmut_71"],
+
+    # session 13: framing (a random 200 of the seven files; the lead)
+    "png_bytes at zlib level 7 by default for 6: another compression of the same pixels (a reader decodes the "
+    "same image; only the size moves, which test_png_header_level_and_message checks between levels 0 and 9)": [
+        "evstream.framing.render.x_png_bytes__mutmut_1"],
+    "FixedWindow._reset: end 1 for 0 while start is None: push sets both at the first event before any read "
+    "(an empty first chunk returns before them; finish reads them only with events counted)": [
+        "evstream.framing.fixed.xǁFixedWindowǁ_reset__mutmut_3"],
+    "SlidingFramer._reset: the empty buffer of flat pixel indices as float64 (dtype None): _first replaces both "
+    "buffers at the first event, before any read": ["evstream.framing.overlap.xǁSlidingFramerǁ_reset__mutmut_13"],
+    "SlidingFramer._first: uint32 flat indices while 2 * pixels < 2^33 (for 2^32): they differ only for a sensor "
+    "of over 2^31 pixels, whose two uint16 count planes alone would be 8 GiB: no stream a test or a user can "
+    "frame reaches it": ["evstream.framing.overlap.xǁSlidingFramerǁ_first__mutmut_13"],
 }
 EQUIVALENT: dict[str, str] = {m: why for why, names in _EQUIVALENT_BY_REASON.items() for m in names}
 

@@ -124,6 +124,10 @@ def test_png_header_level_and_message():
     assert len(png_bytes(big, level=0)) > len(png_bytes(big, level=9))
     with pytest.raises(ValueError, match=r"^PNG needs at least one pixel$"):
         png_bytes(np.zeros((0, 4), np.uint8))
+    # RGBA, 16-bit, 1-D
+    for bad in (np.zeros((2, 2, 4), np.uint8), np.zeros((2, 2), np.uint16), np.zeros(4, np.uint8)):
+        with pytest.raises(ValueError, match=r"^PNG needs uint8 \(H, W\) or \(H, W, 3\), got "):
+            png_bytes(bad)
 
 
 def test_histogram_picture_is_on_minus_off():
