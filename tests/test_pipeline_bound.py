@@ -90,6 +90,7 @@ def test_a_script_with_a_small_window_over_one_big_chunk_takes_memory_for_a_batc
 @given(seed=st.integers(0, 2**32 - 1), spec=st.sampled_from(FRAMERS), at_once=st.integers(1, 8),
        paused=st.booleans(), threads=st.booleans())
 @example(seed=0, spec=FRAMERS[3], at_once=1, paused=False, threads=False)  # oa 40/10: 4 windows open at the end
+@example(seed=0, spec=FRAMERS[3], at_once=1, paused=True, threads=False)  # the pause crossed in enough empty pieces
 def test_the_frames_are_the_same_however_the_pipeline_cuts_the_chunks(seed, spec, at_once, paused, threads):
     """A random stream (a 30 s pause in it, or not) in random chunks through a pipeline whose batches hold
     `at_once` frames' bytes: the framer's frames of the whole stream in one chunk, the events unchanged and
